@@ -1,0 +1,55 @@
+"""jaxmr: differentiable physics of magnetorheological dampers and brakes in JAX."""
+
+from ._current_dynamics import (
+    AbstractCurrentDynamics as AbstractCurrentDynamics,
+    FirstOrderLag as FirstOrderLag,
+)
+from ._current_law import (
+    AbstractCurrentLaw as AbstractCurrentLaw,
+    ConstantLaw as ConstantLaw,
+    ExponentialLaw as ExponentialLaw,
+    LinearLaw as LinearLaw,
+    PolynomialLaw as PolynomialLaw,
+    TableLaw as TableLaw,
+)
+from ._damper import Damper as Damper
+from ._hysteresis import (
+    AbstractHysteresis as AbstractHysteresis,
+    Bingham as Bingham,
+    BoucWen as BoucWen,
+    BoucWenBaberNoori as BoucWenBaberNoori,
+    Dahl as Dahl,
+    LuGre as LuGre,
+    NormalizedBoucWen as NormalizedBoucWen,
+    Spencer as Spencer,
+)
+from ._integrate import (
+    RK4 as RK4,
+    AbstractIntegrator as AbstractIntegrator,
+    Adaptive as Adaptive,
+    FixedStep as FixedStep,
+    Stiff as Stiff,
+)
+from ._signal import (
+    AbstractSignal as AbstractSignal,
+    Chirp as Chirp,
+    Constant as Constant,
+    Multisine as Multisine,
+    Sampled as Sampled,
+    Sine as Sine,
+    Steps as Steps,
+    Triangle as Triangle,
+)
+from ._simulate import simulate as simulate, sweep as sweep
+from ._solution import RESULTS as RESULTS, Solution as Solution
+
+__version__ = "0.1.0"
+from ._analysis import energy_per_cycle as energy_per_cycle
+from ._presets import (
+    PRESETS as PRESETS,
+    review_quarter_car_damper as review_quarter_car_damper,
+    sas_brake_bingham as sas_brake_bingham,
+    sas_brake_bouc_wen as sas_brake_bouc_wen,
+    sas_brake_dahl as sas_brake_dahl,
+    spencer_1997 as spencer_1997,
+)

@@ -1,0 +1,33 @@
+"""Figures of merit of a simulated or measured loop."""
+
+import jax.numpy as jnp
+
+from ._custom_types import ArrayLike, Float
+from ._solution import Solution
+
+
+def energy_per_cycle(
+    solution: Solution, period: float | Float[ArrayLike, "..."]
+) -> Float[ArrayLike, "..."]:
+    r"""Energy dissipated in the last full cycle, $\oint F\,dx = \int_{t_1-P}^{t_1}
+    F\,v\,dt$ [J] (for a brake, torque × angle: [J] too).
+
+    Integrates $F v$ by the trapezoidal rule over the samples of the final period $P$,
+    so give a solution that covers at least one whole period after the initial transient,
+    sampled finely (≥ 100 samples per period for < 0.1 % error). Works on sweeps: the
+    result has the solution's leading axes. Positive for a passive device.
+
+    **Arguments:**
+
+    - `solution`: a `Solution` from `simulate` or `sweep`.
+    - `period`: the excitation period $P$ [s] (1/frequency), scalar or per run.
+    """
+    ts = solution.ts
+    power = solution.force * solution.velocity
+    t_end = ts[..., -1:]
+    period = jnp.asarray(period)[..., None]
+    inside = ts >= t_end - period - 1e-9 * period
+    dt = jnp.diff(ts, axis=-1)
+    both = inside[..., 1:] & inside[..., :-1]
+    segment = 0.5 * (power[..., 1:] + power[..., :-1]) * dt
+    return jnp.sum(jnp.where(both, segment, 0.0), axis=-1)

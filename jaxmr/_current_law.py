@@ -1,0 +1,151 @@
+"""Current laws: how a model parameter depends on the coil current (or command voltage).
+
+Any numeric parameter of a hysteresis model may be given as a law instead of a number;
+the model resolves it at the effective current with `AbstractHysteresis.at`. The law's
+input is in A (or V for voltage-driven dampers such as Spencer's); its output carries the
+unit of the parameter it stands for.
+"""
+
+import abc
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+
+from ._custom_types import Array, Float, Scalar
+from ._misc import as_float_array, check_concrete
+
+
+class AbstractCurrentLaw(eqx.Module):
+    """A parameter as a function of the effective current $i$ [A] (or voltage [V])."""
+
+    @abc.abstractmethod
+    def __call__(self, current: Scalar) -> Scalar:
+        """The parameter's value at `current`."""
+
+    def range(self) -> tuple[Array, Array] | None:
+        """The currents this law is valid for, or `None` when it is valid for any."""
+        return None
+
+
+class ConstantLaw(AbstractCurrentLaw):
+    r"""$p(i) = p_0$: a parameter that does not depend on current (useful when fitting
+    switches a parameter between shared and current-dependent)."""
+
+    value: Float[Array, ""] = eqx.field(converter=as_float_array)
+
+    def __call__(self, current: Scalar) -> Scalar:
+        return self.value + 0.0 * current
+
+
+class LinearLaw(AbstractCurrentLaw):
+    r"""$p(i) = a + b\,i$ (the SAS study's choice for $C$, $\alpha$, $k_x$, $k_w$).
+
+    **Arguments:**
+
+    - `a`: value at zero current, in the parameter's unit.
+    - `b`: slope, in the parameter's unit per A (or per V).
+    """
+
+    a: Float[Array, ""] = eqx.field(converter=as_float_array)
+    b: Float[Array, ""] = eqx.field(converter=as_float_array)
+
+    def __call__(self, current: Scalar) -> Scalar:
+        return self.a + self.b * current
+
+
+class PolynomialLaw(AbstractCurrentLaw):
+    r"""$p(i) = \sum_k c_k i^k$, coefficients in increasing order of power.
+
+    **Arguments:**
+
+    - `coefficients`: $c_0, c_1, \dots$ in the parameter's unit per A^k. The UTFSM
+      damper's $\alpha(i) = p_6 + p_5 i + p_4 i^2$ is `PolynomialLaw([p6, p5, p4])`.
+    """
+
+    coefficients: Float[Array, " degree_plus_one"] = eqx.field(converter=as_float_array)
+
+    def __check_init__(self):
+        if self.coefficients.ndim != 1 or self.coefficients.shape[0] < 1:
+            raise ValueError(
+                "PolynomialLaw: `coefficients` must be a non-empty 1-D array "
+                f"(c0, c1, ...), got shape {self.coefficients.shape}."
+            )
+
+    def __call__(self, current: Scalar) -> Scalar:
+        # Horner's scheme, highest power first.
+        return jnp.polyval(self.coefficients[::-1], current)
+
+
+class ExponentialLaw(AbstractCurrentLaw):
+    r"""$p(i) = a\,e^{b i}$ (the UTFSM damper's $\beta(i) = \gamma(i)$).
+
+    **Arguments:**
+
+    - `a`: value at zero current, in the parameter's unit.
+    - `b`: rate, in 1/A (or 1/V).
+    """
+
+    a: Float[Array, ""] = eqx.field(converter=as_float_array)
+    b: Float[Array, ""] = eqx.field(converter=as_float_array)
+
+    def __call__(self, current: Scalar) -> Scalar:
+        return self.a * jnp.exp(self.b * current)
+
+
+class TableLaw(AbstractCurrentLaw):
+    r"""One value per tested current, linearly interpolated in between.
+
+    What the BWBN study does: it identifies each parameter separately at each test
+    current. A current outside `[currents[0], currents[-1]]` is an error, not an
+    extrapolation: `simulate` checks the current signal's range before it integrates.
+
+    **Arguments:**
+
+    - `currents`: the tested currents in A, strictly increasing.
+    - `values`: the parameter at each of them, in the parameter's unit.
+    """
+
+    currents: Float[Array, " table"] = eqx.field(converter=as_float_array)
+    values: Float[Array, " table"] = eqx.field(converter=as_float_array)
+
+    def __check_init__(self):
+        if self.currents.ndim != 1 or self.currents.shape != self.values.shape:
+            raise ValueError(
+                "TableLaw: `currents` and `values` must be 1-D arrays of equal length, "
+                f"got shapes {self.currents.shape} and {self.values.shape}."
+            )
+        if self.currents.shape[0] < 1:
+            raise ValueError("TableLaw: give at least one (current, value) pair.")
+        check_concrete(
+            jnp.all(jnp.diff(self.currents) > 0),
+            "TableLaw: `currents` must be strictly increasing; sort the table by "
+            f"current (got {self.currents}).",
+            self.currents,
+        )
+
+    def __call__(self, current: Scalar) -> Scalar:
+        return jnp.interp(current, self.currents, self.values)
+
+    def range(self) -> tuple[Array, Array]:
+        return self.currents[0], self.currents[-1]
+
+
+def is_law(x) -> bool:
+    return isinstance(x, AbstractCurrentLaw)
+
+
+def resolve(tree, current: Scalar):
+    """Replace every current law inside `tree` by its value at `current`."""
+    return jax.tree.map(lambda p: p(current) if is_law(p) else p, tree, is_leaf=is_law)
+
+
+def law_ranges(tree) -> list[tuple[Array, Array]]:
+    """The validity ranges of all the laws in `tree` that have one."""
+    laws = [p for p in jax.tree.leaves(tree, is_leaf=is_law) if is_law(p)]
+    return [r for r in (law.range() for law in laws) if r is not None]
+
+
+def as_parameter(x):
+    """Converter for model parameters: keep a current law, make anything else an array."""
+    return x if is_law(x) else as_float_array(x)

@@ -1,0 +1,63 @@
+"""The abstract hysteresis law every damper model implements."""
+
+import abc
+from typing import ClassVar
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+
+from .._current_law import is_law, resolve
+from .._custom_types import Array, Bool, Scalar, State
+from .._misc import check_concrete, is_concrete
+
+
+class AbstractHysteresis(eqx.Module):
+    r"""A hysteresis law: force from motion and an internal state.
+
+    A model is $\dot s = g(s, x, v; p(i))$, $F = h(s, x, v; p(i))$ with state $s$,
+    relative displacement $x$ [m] (or angle [rad]), velocity $v$ [m/s] (or [rad/s]),
+    force $F$ [N] (or torque [N·m]) and parameters $p$ that may depend on the effective
+    current $i$ through current laws.
+
+    To add a model, subclass this and implement `rates` and `force` for *resolved*
+    parameters (every current law already replaced by its value: the framework calls
+    `model.at(i)` first), set `state_names`, and optionally override `initial_state` and
+    `constraints`. Nothing else in jaxmr needs to change.
+    """
+
+    state_names: ClassVar[tuple[str, ...]] = ()
+
+    def at(self, current: Scalar) -> "AbstractHysteresis":
+        """This model with every current law evaluated at `current` [A or V]."""
+        return resolve(self, current)
+
+    def initial_state(self, x: Scalar, v: Scalar) -> State:
+        """The internal state at the start of a simulation (zeros: a virgin device)."""
+        del v
+        return jnp.zeros(len(self.state_names), dtype=jnp.result_type(x))
+
+    @abc.abstractmethod
+    def rates(self, state: State, x: Scalar, v: Scalar) -> State:
+        """$\\dot s$, with resolved parameters."""
+
+    @abc.abstractmethod
+    def force(self, state: State, x: Scalar, v: Scalar) -> Scalar:
+        """$F$ [N] (or torque [N·m]), with resolved parameters."""
+
+    def constraints(self) -> list[tuple[Bool[Array, ""], str]]:
+        """Physical-validity checks for resolved parameters: `(ok, message)` pairs.
+
+        `simulate` raises the message of any failing check; construction raises it at
+        once when the parameters are concrete numbers.
+        """
+        return []
+
+    def __check_init__(self):
+        # Only parameters given as plain numbers can be checked before a current is known.
+        if any(is_law(p) for p in jax.tree.leaves(self, is_leaf=is_law)):
+            return
+        if not is_concrete(self):
+            return
+        for ok, message in self.constraints():
+            check_concrete(ok, f"{type(self).__name__}: {message}", self)

@@ -1,0 +1,42 @@
+"""Dahl friction model with current-dependent stiffnesses."""
+
+from typing import ClassVar
+
+import equinox as eqx
+import jax.numpy as jnp
+
+from .._current_law import AbstractCurrentLaw, as_parameter
+from .._custom_types import Array, Float, Scalar, State
+from .base import AbstractHysteresis
+
+Parameter = Float[Array, ""] | AbstractCurrentLaw
+
+
+class Dahl(AbstractHysteresis):
+    r"""Dahl model, $F = k_x(i)\,v + k_w(i)\,z$, $\dot z = \rho\,(v - |v|\,z)$.
+
+    $z$ is dimensionless and stays in $[-1, 1]$; it approaches $\mathrm{sgn}(v)$ over a
+    displacement of order $1/\rho$, so at steady sliding $F \to k_w\,\mathrm{sgn}(v) +
+    k_x v$ (a smoothed Bingham law).
+
+    **Arguments:**
+
+    - `k_x`: viscous coefficient [N·s/m] or [N·m·s/rad]; may be a law.
+    - `k_w`: friction force amplitude [N] or [N·m]; may be a law.
+    - `rho`: $\rho$ [1/m] or [1/rad], > 0.
+    """
+
+    k_x: Parameter = eqx.field(converter=as_parameter)
+    k_w: Parameter = eqx.field(converter=as_parameter)
+    rho: Parameter = eqx.field(converter=as_parameter)
+    state_names: ClassVar[tuple[str, ...]] = ("z",)
+
+    def rates(self, state: State, x: Scalar, v: Scalar) -> State:
+        z = state[0]
+        return (self.rho * (v - jnp.abs(v) * z))[None]
+
+    def force(self, state: State, x: Scalar, v: Scalar) -> Scalar:
+        return self.k_x * v + self.k_w * state[0]
+
+    def constraints(self):
+        return [(self.rho > 0, f"`rho` must be > 0, got {self.rho}.")]

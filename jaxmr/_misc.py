@@ -1,0 +1,54 @@
+"""Small numerical helpers used by several models."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ._custom_types import Array, ArrayLike
+
+
+def default_float():
+    """The floating dtype jax uses now (float64 only when the user enabled x64)."""
+    return jnp.result_type(float)
+
+
+def as_float_array(x: ArrayLike) -> Array:
+    """Converter for numeric fields: a float array of jax's default float dtype."""
+    return jnp.asarray(x, dtype=default_float())
+
+
+def abs_pow(z: Array, p: Array) -> Array:
+    """$|z|^p$ with finite derivatives at $z = 0$.
+
+    Writing `jnp.abs(z) ** p` is fine in the forward pass for `p > 0`, but its derivative
+    with respect to `p` is `log|z|·|z|^p = -inf·0 = nan` at `z = 0` (the usual initial
+    hysteretic state), and its derivative with respect to `z` is infinite for `p < 1`.
+    The double `where` evaluates the power only where `|z| > 0` and returns the exact
+    limits (value 0, derivatives 0) at `z = 0`, so no nan reaches the gradient.
+    """
+    a = jnp.abs(z)
+    positive = a > 0
+    a_safe = jnp.where(positive, a, 1.0)
+    return jnp.where(positive, a_safe**p, 0.0)
+
+
+def signed_pow(z: Array, p: Array) -> Array:
+    r"""$z |z|^{p-1} = \mathrm{sgn}(z) |z|^p$, finite at $z = 0$ (see `abs_pow`)."""
+    return jnp.sign(z) * abs_pow(z, p)
+
+
+def is_concrete(*xs) -> bool:
+    """True when every array in `xs` has a value now (not a tracer under jit/vmap/grad)."""
+    leaves = jax.tree.leaves(xs)
+    return not any(isinstance(x, jax.core.Tracer) for x in leaves)
+
+
+def check_concrete(condition_ok, message: str, *values) -> None:
+    """Raise `ValueError(message)` now if `values` are concrete and `condition_ok` fails.
+
+    Used in `__check_init__`: parameters built by hand are checked at once with a message
+    that says how to fix them; parameters that are traced (inside a fit) are checked by
+    the simulation's runtime checks instead.
+    """
+    if is_concrete(*values) and not bool(np.all(np.asarray(condition_ok))):
+        raise ValueError(message)

@@ -1,0 +1,95 @@
+"""Published parameter sets as named presets (SI units throughout).
+
+Functions rather than module constants, so that the arrays take the float precision in
+force when they are called (jaxmr never changes JAX's configuration).
+"""
+
+from ._current_dynamics import FirstOrderLag
+from ._current_law import LinearLaw
+from ._damper import Damper
+from ._hysteresis import Bingham, BoucWen, Dahl, Spencer
+
+CM = 1e-2  # m
+
+
+def sas_brake_bouc_wen() -> BoucWen:
+    r"""The SAS study's rotary MR brake, Bouc–Wen (its Table 1).
+
+    $T = (\alpha_a + \alpha_b i) z + (C_{0a} + C_{0b} i)\dot\theta$,
+    $\dot z = \delta\dot\theta - \gamma|\dot\theta| z|z|^{n-1} - \beta\dot\theta|z|^n$ with
+    β = 737, γ = 1, δ = 843, n = 0.9, C0a = 0.0015 N·m·s/rad, C0b = 0.07 N·m·s/(rad·A),
+    αa = 1 N·m, αb = 0.07 N·m/A (printed as "Ns/m" and "N/m"; rotary units here).
+    Angle in rad, torque in N·m, current in A.
+    """
+    return BoucWen(
+        alpha=LinearLaw(1.0, 0.07),
+        c0=LinearLaw(0.0015, 0.07),
+        A=843.0,
+        beta=737.0,
+        gamma=1.0,
+        n=0.9,
+    )
+
+
+def sas_brake_dahl() -> Dahl:
+    r"""The SAS study's rotary MR brake, Dahl model (its Table 2): $k_x = 0.001 +
+    0.001 i$ N·m·s/rad, $k_w = 5 + 1.5 i$ N·m, $\rho = 5$ 1/rad."""
+    return Dahl(k_x=LinearLaw(0.001, 0.001), k_w=LinearLaw(5.0, 1.5), rho=5.0)
+
+
+def sas_brake_bingham(f_c: float = 0.1, f0: float = 0.0) -> Bingham:
+    r"""The SAS study's rotary MR brake, Bingham model: $c_0 = 0.002$ N·m·s/rad and
+    $f_c$ = 0.1 or 0.2 N·m (the two values it plots). It calls $f_0$ "non-zero" and
+    prints 1; 0 by default here so the loop is centred, pass `f0=1.0` for the print."""
+    return Bingham(f_c=f_c, c0=0.002, f0=f0)
+
+
+def spencer_1997() -> Damper:
+    r"""Spencer et al. (1997) prototype damper, voltage-driven, in SI units.
+
+    From the commonly quoted values: $c_{0a}$ = 21.0 N·s/cm, $c_{0b}$ = 3.50
+    N·s/(cm·V), $k_0$ = 46.9 N/cm, $c_{1a}$ = 283 N·s/cm, $c_{1b}$ = 2.95 N·s/(cm·V),
+    $k_1$ = 5.00 N/cm, $x_0$ = 14.3 cm, $\alpha_a$ = 140 N/cm, $\alpha_b$ = 695
+    N/(cm·V), γ = β = 363 cm⁻², A = 301, n = 2, η = 190 s⁻¹. The current input of the
+    returned damper is the command voltage [V]; it passes the 190 s⁻¹ filter.
+    """
+    return Damper(
+        Spencer(
+            alpha=LinearLaw(140.0 / CM, 695.0 / CM),
+            c0=LinearLaw(21.0 / CM, 3.50 / CM),
+            k0=46.9 / CM,
+            c1=LinearLaw(283.0 / CM, 2.95 / CM),
+            k1=5.00 / CM,
+            x0=14.3 * CM,
+            gamma=363.0 / CM**2,
+            beta=363.0 / CM**2,
+            A=301.0,
+            n=2.0,
+        ),
+        FirstOrderLag(190.0),
+    )
+
+
+def review_quarter_car_damper() -> BoucWen:
+    r"""The review paper's quarter-car MR damper, a current-dependent simple Bouc–Wen
+    model, values as printed: γ = 1, β = 0, A = 1.5, n = 2, k0 = 300 N/m,
+    $c_0 = 4400 + 442 u$ N·s/m, $\alpha = 10872 + 49616 u$ N/m, f0 = 0, with the command
+    voltage $u$ [V] (the paper drives it at 5 V)."""
+    return BoucWen(
+        alpha=LinearLaw(10872.0, 49616.0),
+        c0=LinearLaw(4400.0, 442.0),
+        A=1.5,
+        beta=0.0,
+        gamma=1.0,
+        n=2.0,
+        k0=300.0,
+    )
+
+
+PRESETS = {
+    "sas_brake_bouc_wen": sas_brake_bouc_wen,
+    "sas_brake_dahl": sas_brake_dahl,
+    "sas_brake_bingham": sas_brake_bingham,
+    "spencer_1997": spencer_1997,
+    "review_quarter_car_damper": review_quarter_car_damper,
+}

@@ -1,0 +1,347 @@
+"""Prescribed signals of time: motions (displacement or angle) and currents (or voltages).
+
+A signal gives its value and its time derivative at any time, so a motion supplies both
+$x(t)$ and $v(t) = \\dot x(t)$ to a damper model with no numerical differentiation.
+Every signal is an equinox Module: batch a sweep by stacking them, differentiate with
+respect to their fields.
+"""
+
+import abc
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+
+from ._custom_types import Array, Bool, Float, Scalar
+from ._misc import as_float_array, check_concrete
+
+TWO_PI = 2 * jnp.pi
+
+
+class AbstractSignal(eqx.Module):
+    """A scalar function of time $t$ [s]: displacement [m], angle [rad], current [A]
+    or voltage [V]."""
+
+    @abc.abstractmethod
+    def __call__(self, t: Scalar) -> Scalar:
+        """The value at time `t` [s]."""
+
+    @abc.abstractmethod
+    def derivative(self, t: Scalar) -> Scalar:
+        """The time derivative at `t` [unit/s]."""
+
+    @abc.abstractmethod
+    def bounds(self) -> tuple[Array, Array]:
+        """Lower and upper bound of the value over all time."""
+
+    def checks(self) -> list[tuple[Bool[Array, ""], str]]:
+        """Runtime validity checks `(ok, message)`; every signal's numbers must be
+        finite."""
+        leaves = [x for x in jax.tree.leaves(self) if eqx.is_array(x)]
+        finite = jnp.all(jnp.array([jnp.all(jnp.isfinite(x)) for x in leaves]))
+        return [(finite, f"{type(self).__name__}: its data contain NaN or inf.")]
+
+
+def as_signal(x) -> AbstractSignal:
+    """A signal from a signal or a number (a constant)."""
+    if isinstance(x, AbstractSignal):
+        return x
+    try:
+        value = as_float_array(x)
+    except TypeError as e:
+        raise TypeError(
+            "expected a jaxmr signal (Constant, Sine, Steps, Sampled, ...) or a number, "
+            f"got {type(x).__name__}."
+        ) from e
+    if value.ndim != 0:
+        raise ValueError(
+            "a constant current or motion must be a scalar; for a sweep over several "
+            f"values use `sweep`, got shape {value.shape}."
+        )
+    return Constant(value)
+
+
+class Constant(AbstractSignal):
+    """A constant value (e.g. a constant current [A])."""
+
+    value: Float[Array, ""] = eqx.field(converter=as_float_array)
+
+    def __call__(self, t):
+        return self.value + 0.0 * t
+
+    def derivative(self, t):
+        return 0.0 * t
+
+    def bounds(self):
+        return self.value, self.value
+
+
+class Sine(AbstractSignal):
+    r"""$s(t) = s_0 + a \sin(2\pi f t + \varphi)$.
+
+    **Arguments:**
+
+    - `amplitude`: $a$, in the signal's unit (m, rad, A, V).
+    - `frequency`: $f$ [Hz], > 0.
+    - `phase`: $\varphi$ [rad], default 0.
+    - `offset`: $s_0$, default 0 (e.g. a bias current).
+    """
+
+    amplitude: Float[Array, ""] = eqx.field(converter=as_float_array)
+    frequency: Float[Array, ""] = eqx.field(converter=as_float_array)
+    phase: Float[Array, ""] = eqx.field(converter=as_float_array, default=0.0)
+    offset: Float[Array, ""] = eqx.field(converter=as_float_array, default=0.0)
+
+    def __check_init__(self):
+        check_concrete(
+            self.frequency > 0,
+            f"Sine: `frequency` must be > 0 Hz, got {self.frequency}.",
+            self.frequency,
+        )
+
+    def __call__(self, t):
+        return self.offset + self.amplitude * jnp.sin(
+            TWO_PI * self.frequency * t + self.phase
+        )
+
+    def derivative(self, t):
+        w = TWO_PI * self.frequency
+        return self.amplitude * w * jnp.cos(w * t + self.phase)
+
+    def bounds(self):
+        a = jnp.abs(self.amplitude)
+        return self.offset - a, self.offset + a
+
+
+class Triangle(AbstractSignal):
+    r"""Triangle wave of amplitude $a$ and frequency $f$: constant speed $4 a f$,
+    reversing at the peaks. $s(t) = s_0 + a\,\tfrac{2}{\pi}\arcsin\sin(2\pi f t +
+    \varphi)$ (in phase with `Sine`).
+
+    **Arguments:** as `Sine`.
+    """
+
+    amplitude: Float[Array, ""] = eqx.field(converter=as_float_array)
+    frequency: Float[Array, ""] = eqx.field(converter=as_float_array)
+    phase: Float[Array, ""] = eqx.field(converter=as_float_array, default=0.0)
+    offset: Float[Array, ""] = eqx.field(converter=as_float_array, default=0.0)
+
+    def __check_init__(self):
+        check_concrete(
+            self.frequency > 0,
+            f"Triangle: `frequency` must be > 0 Hz, got {self.frequency}.",
+            self.frequency,
+        )
+
+    def _angle(self, t):
+        return TWO_PI * self.frequency * t + self.phase
+
+    def __call__(self, t):
+        s = jnp.clip(jnp.sin(self._angle(t)), -1.0, 1.0)
+        return self.offset + self.amplitude * (2 / jnp.pi) * jnp.arcsin(s)
+
+    def derivative(self, t):
+        return 4 * self.amplitude * self.frequency * jnp.sign(jnp.cos(self._angle(t)))
+
+    def bounds(self):
+        a = jnp.abs(self.amplitude)
+        return self.offset - a, self.offset + a
+
+
+class Multisine(AbstractSignal):
+    r"""$s(t) = \sum_k a_k \sin(2\pi f_k t + \varphi_k)$.
+
+    **Arguments:**
+
+    - `amplitudes`: $a_k$ in the signal's unit; `frequencies`: $f_k$ [Hz];
+      `phases`: $\varphi_k$ [rad] (default zeros). Equal lengths.
+    """
+
+    amplitudes: Float[Array, " components"] = eqx.field(converter=as_float_array)
+    frequencies: Float[Array, " components"] = eqx.field(converter=as_float_array)
+    phases: Float[Array, " components"] | None = eqx.field(
+        converter=lambda p: None if p is None else as_float_array(p), default=None
+    )
+
+    def __check_init__(self):
+        shapes = {self.amplitudes.shape, self.frequencies.shape}
+        if self.phases is not None:
+            shapes.add(self.phases.shape)
+        if len(shapes) != 1 or self.amplitudes.ndim != 1:
+            raise ValueError(
+                "Multisine: `amplitudes`, `frequencies` (and `phases`) must be 1-D "
+                f"arrays of equal length, got shapes {sorted(shapes)}."
+            )
+
+    def _phases(self):
+        return jnp.zeros_like(self.amplitudes) if self.phases is None else self.phases
+
+    def __call__(self, t):
+        arg = TWO_PI * self.frequencies * t + self._phases()
+        return jnp.sum(self.amplitudes * jnp.sin(arg))
+
+    def derivative(self, t):
+        w = TWO_PI * self.frequencies
+        return jnp.sum(self.amplitudes * w * jnp.cos(w * t + self._phases()))
+
+    def bounds(self):
+        bound = jnp.sum(jnp.abs(self.amplitudes))
+        return -bound, bound
+
+
+class Chirp(AbstractSignal):
+    r"""Linear chirp $s(t) = a \sin(2\pi(f_0 t + (f_1 - f_0) t^2 / (2 T)))$: the
+    frequency sweeps from $f_0$ at $t=0$ to $f_1$ at $t=T$ (and goes on beyond).
+
+    **Arguments:**
+
+    - `amplitude`: $a$; `f0`, `f1`: start and end frequency [Hz]; `duration`: $T$ [s].
+    """
+
+    amplitude: Float[Array, ""] = eqx.field(converter=as_float_array)
+    f0: Float[Array, ""] = eqx.field(converter=as_float_array)
+    f1: Float[Array, ""] = eqx.field(converter=as_float_array)
+    duration: Float[Array, ""] = eqx.field(converter=as_float_array)
+
+    def __check_init__(self):
+        check_concrete(
+            self.duration > 0,
+            f"Chirp: `duration` must be > 0 s, got {self.duration}.",
+            self.duration,
+        )
+
+    def __call__(self, t):
+        rate = (self.f1 - self.f0) / self.duration
+        return self.amplitude * jnp.sin(TWO_PI * (self.f0 * t + 0.5 * rate * t**2))
+
+    def derivative(self, t):
+        rate = (self.f1 - self.f0) / self.duration
+        arg = TWO_PI * (self.f0 * t + 0.5 * rate * t**2)
+        return self.amplitude * TWO_PI * (self.f0 + rate * t) * jnp.cos(arg)
+
+    def bounds(self):
+        a = jnp.abs(self.amplitude)
+        return -a, a
+
+
+class Steps(AbstractSignal):
+    """Piecewise constant: `values[k]` from `times[k]` on (and `values[0]` before
+    `times[0]`). Its derivative is zero: a current step is seen by the model at once,
+    or through the damper's current dynamics.
+
+    **Arguments:**
+
+    - `times`: switching times [s], strictly increasing; `values`: one per time.
+    """
+
+    times: Float[Array, " steps"] = eqx.field(converter=as_float_array)
+    values: Float[Array, " steps"] = eqx.field(converter=as_float_array)
+
+    def __check_init__(self):
+        if self.times.ndim != 1 or self.times.shape != self.values.shape:
+            raise ValueError(
+                "Steps: `times` and `values` must be 1-D arrays of equal length, got "
+                f"shapes {self.times.shape} and {self.values.shape}."
+            )
+        check_concrete(
+            jnp.all(jnp.diff(self.times) > 0),
+            "Steps: `times` must be strictly increasing.",
+            self.times,
+        )
+
+    def __call__(self, t):
+        index = jnp.clip(jnp.searchsorted(self.times, t, side="right") - 1, 0)
+        return self.values[index]
+
+    def derivative(self, t):
+        return 0.0 * t
+
+    def bounds(self):
+        return jnp.min(self.values), jnp.max(self.values)
+
+
+class Sampled(AbstractSignal):
+    r"""A measured signal given at sample times.
+
+    Without `derivatives` the signal is the piecewise-linear interpolant of the samples
+    and its derivative is that interpolant's slope (piecewise constant): the velocity
+    "from the interpolant". With measured `derivatives` (e.g. a velocity channel) the
+    signal is the cubic Hermite interpolant through values and derivatives, whose
+    derivative is continuous and matches the measured one at the samples. Outside the
+    sample times the end values are held.
+
+    **Arguments:**
+
+    - `times`: sample times [s], strictly increasing.
+    - `values`: samples, in the signal's unit.
+    - `derivatives`: measured time derivatives [unit/s], or `None`.
+    """
+
+    times: Float[Array, " samples"] = eqx.field(converter=as_float_array)
+    values: Float[Array, " samples"] = eqx.field(converter=as_float_array)
+    derivatives: Float[Array, " samples"] | None = eqx.field(
+        converter=lambda d: None if d is None else as_float_array(d), default=None
+    )
+
+    def __check_init__(self):
+        if self.times.ndim != 1 or self.times.shape != self.values.shape:
+            raise ValueError(
+                "Sampled: `times` and `values` must be 1-D arrays of equal length, got "
+                f"shapes {self.times.shape} and {self.values.shape}."
+            )
+        if self.derivatives is not None and self.derivatives.shape != self.times.shape:
+            raise ValueError(
+                "Sampled: `derivatives` must have the shape of `times`, got "
+                f"{self.derivatives.shape} and {self.times.shape}."
+            )
+        if self.times.shape[0] < 2:
+            raise ValueError("Sampled: give at least two samples.")
+        check_concrete(
+            jnp.all(jnp.diff(self.times) > 0),
+            "Sampled: `times` must be strictly increasing (sort the samples, drop "
+            "repeated time stamps).",
+            self.times,
+        )
+        check_concrete(
+            jnp.all(jnp.isfinite(self.values)),
+            "Sampled: `values` contain NaN or inf; remove or repair those samples.",
+            self.values,
+        )
+
+    def _locate(self, t):
+        k = jnp.clip(
+            jnp.searchsorted(self.times, t, side="right") - 1, 0, len(self.times) - 2
+        )
+        t0, t1 = self.times[k], self.times[k + 1]
+        h = t1 - t0
+        s = jnp.clip((t - t0) / h, 0.0, 1.0)
+        return k, h, s
+
+    def __call__(self, t):
+        k, h, s = self._locate(t)
+        y0, y1 = self.values[k], self.values[k + 1]
+        if self.derivatives is None:
+            return y0 + s * (y1 - y0)
+        d0, d1 = self.derivatives[k] * h, self.derivatives[k + 1] * h
+        h00 = 2 * s**3 - 3 * s**2 + 1
+        h10 = s**3 - 2 * s**2 + s
+        h01 = -2 * s**3 + 3 * s**2
+        h11 = s**3 - s**2
+        return h00 * y0 + h10 * d0 + h01 * y1 + h11 * d1
+
+    def derivative(self, t):
+        k, h, s = self._locate(t)
+        y0, y1 = self.values[k], self.values[k + 1]
+        inside = (t >= self.times[0]) & (t <= self.times[-1])
+        if self.derivatives is None:
+            return jnp.where(inside, (y1 - y0) / h, 0.0)
+        d0, d1 = self.derivatives[k] * h, self.derivatives[k + 1] * h
+        dh00 = 6 * s**2 - 6 * s
+        dh10 = 3 * s**2 - 4 * s + 1
+        dh01 = -6 * s**2 + 6 * s
+        dh11 = 3 * s**2 - 2 * s
+        slope = (dh00 * y0 + dh10 * d0 + dh01 * y1 + dh11 * d1) / h
+        return jnp.where(inside, slope, 0.0)
+
+    def bounds(self):
+        return jnp.min(self.values), jnp.max(self.values)

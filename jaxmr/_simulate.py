@@ -1,0 +1,388 @@
+"""`simulate` and `sweep`: a damper under prescribed motion and current."""
+
+from collections.abc import Sequence
+from typing import Literal
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax.sharding import Mesh, PartitionSpec
+
+from ._custom_types import ArrayLike, Float
+from ._damper import Damper, as_damper
+from ._hysteresis import AbstractHysteresis
+from ._integrate import AbstractIntegrator, Adaptive, FixedStep
+from ._misc import as_float_array, is_concrete
+from ._signal import AbstractSignal, as_signal
+from ._solution import RESULTS, Solution
+
+
+def _check_times(ts) -> jax.Array:
+    ts = as_float_array(ts)
+    if ts.ndim != 1 or ts.shape[0] < 2:
+        raise ValueError(
+            "`ts` must be a 1-D array of at least two output times [s], got shape "
+            f"{ts.shape}."
+        )
+    if is_concrete(ts):
+        if not bool(jnp.all(jnp.isfinite(ts))):
+            raise ValueError("`ts` contains NaN or inf; give finite output times.")
+        if not bool(jnp.all(jnp.diff(ts) > 0)):
+            k = int(jnp.argmin(jnp.diff(ts)))
+            raise ValueError(
+                f"`ts` must be strictly increasing, but ts[{k}] = {float(ts[k])} >= ts[{k + 1}] = {float(ts[k + 1])}; sort "
+                "the times and drop duplicates."
+            )
+    return ts
+
+
+def _runtime_checks(damper: Damper, motion, current, ts):
+    """Checks of values only known under jit: they raise with these messages."""
+    checks = [
+        (jnp.all(jnp.diff(ts) > 0), "`ts` must be strictly increasing."),
+        (jnp.all(jnp.isfinite(ts)), "`ts` contains NaN or inf."),
+    ]
+    checks += [(ok, f"motion: {m}") for ok, m in motion.checks()]
+    checks += [(ok, f"current: {m}") for ok, m in current.checks()]
+    lo, hi = current.bounds()
+    for law_lo, law_hi in damper.current_ranges():
+        checks.append(
+            (
+                (lo >= law_lo) & (hi <= law_hi),
+                "the current leaves the range of a TableLaw of the model; extend the "
+                "table or keep the current inside it.",
+            )
+        )
+    name = type(damper.hysteresis).__name__
+    at_start = damper.hysteresis.at(current(ts[0]))
+    checks += [(ok, f"{name}: {m}") for ok, m in at_start.constraints()]
+    for ok, message in checks:
+        ts = eqx.error_if(ts, jnp.logical_not(ok), message)
+    return ts
+
+
+def _field(t, y, args):
+    damper, motion, current = args
+    return damper.rates(y, motion(t), motion.derivative(t), current(t))
+
+
+def _run(damper, motion, current, ts, integrator, initial_state) -> Solution:
+    """One simulation, traced (no jit of its own: it is vmapped and mapped)."""
+    ts = _runtime_checks(damper, motion, current, ts)
+    x = jax.vmap(motion)(ts)
+    v = jax.vmap(motion.derivative)(ts)
+    i = jax.vmap(current)(ts)
+    if initial_state is None:
+        y0 = damper.initial_state(x[0], v[0], i[0])
+    else:
+        y0 = as_float_array(initial_state)
+    if y0.shape[0] == 0:  # a static model (Bingham): nothing to integrate
+        ys = jnp.zeros((ts.shape[0], 0), dtype=ts.dtype)
+        result, num_steps = RESULTS.successful, jnp.array(0)
+    else:
+        ys, result, num_steps = integrator.integrate(
+            _field, y0, ts, (damper, motion, current)
+        )
+    force = jax.vmap(damper.force)(ys, x, v, i)
+    effective = jax.vmap(damper.effective_current)(ys, i)
+    force_ok = jnp.all(jnp.isfinite(force))
+    result = RESULTS.where(
+        (result == RESULTS.successful) & ~force_ok, RESULTS.nonfinite_force, result
+    )
+    return Solution(
+        ts=ts,
+        displacement=x,
+        velocity=v,
+        current=i,
+        effective_current=effective,
+        force=force,
+        states=ys,
+        result=result,
+        num_steps=num_steps,
+        state_names=damper.state_names,
+    )
+
+
+@eqx.filter_jit
+def _simulate(damper, motion, current, ts, integrator, initial_state, throw):
+    sol = _run(damper, motion, current, ts, integrator, initial_state)
+    return sol.result.error_if(sol, sol.result != RESULTS.successful) if throw else sol
+
+
+def _prepare(device, motion, current, integrator):
+    damper = as_damper(device)
+    if not isinstance(motion, AbstractSignal):
+        raise TypeError(
+            "`motion` must be a jaxmr signal of displacement [m] or angle [rad], e.g. "
+            f"Sine(amplitude, frequency) or Sampled(t, x); got {type(motion).__name__}."
+        )
+    current = as_signal(current)
+    integrator = Adaptive() if integrator is None else integrator
+    if not isinstance(integrator, AbstractIntegrator):
+        raise TypeError(
+            "`integrator` must be jaxmr.Adaptive(), Stiff() or FixedStep(), got "
+            f"{type(integrator).__name__}."
+        )
+    return damper, motion, current, integrator
+
+
+def simulate(
+    device: Damper | AbstractHysteresis,
+    motion: AbstractSignal,
+    current: AbstractSignal | float = 0.0,
+    ts: Float[ArrayLike, " times"] | None = None,
+    *,
+    integrator: AbstractIntegrator | None = None,
+    initial_state: Float[ArrayLike, " states"] | None = None,
+    throw: bool = True,
+) -> Solution:
+    r"""Simulate a damper (or brake) under a prescribed motion and current.
+
+    Integrates the damper's internal state from `ts[0]` with the motion $x(t)$,
+    $v(t) = \dot x(t)$ and commanded current $i(t)$ prescribed, and returns the force
+    and states at `ts`. Jit-compiled (one compilation per model type, signal type and
+    array shapes) and differentiable with respect to every array in its arguments.
+
+    **Arguments:**
+
+    - `device`: a `Damper`, or a bare hysteresis model (no current dynamics).
+    - `motion`: the relative displacement [m] (angle [rad] for a brake) as a signal:
+      `Sine`, `Triangle`, `Multisine`, `Chirp`, `Sampled`, ...
+    - `current`: commanded current [A] (voltage [V] for voltage-driven models): a number
+      or a signal (`Constant`, `Steps`, `Sampled`, `Sine`).
+    - `ts`: output times [s], 1-D, strictly increasing, at least two.
+    - `integrator`: `Adaptive()` (default: Dopri8, rtol 1e-8), `Stiff()` or
+      `FixedStep(substeps)`.
+    - `initial_state`: the state at `ts[0]`; default: a virgin device (z = 0) with the
+      current dynamics settled at the initial command.
+    - `throw`: raise if the solve fails (default); with `False` inspect
+      `solution.result` instead.
+
+    **Returns:** a `Solution` (force [N] or torque [N·m], states, inputs, result).
+    """
+    if ts is None:
+        raise ValueError(
+            "`ts` is required: the output times [s], e.g. jnp.linspace(0, 2, 2001)."
+        )
+    damper, motion, current, integrator = _prepare(device, motion, current, integrator)
+    ts = _check_times(ts)
+    if initial_state is not None:
+        initial_state = as_float_array(initial_state)
+        expected = len(damper.state_names)
+        if initial_state.shape != (expected,):
+            raise ValueError(
+                f"`initial_state` must have shape ({expected},) for states "
+                f"{damper.state_names}, got {initial_state.shape}."
+            )
+    return _simulate(damper, motion, current, ts, integrator, initial_state, throw)
+
+
+# ---------------------------------------------------------------------------------------
+# Sweeps
+
+
+def _stack(items, what: str):
+    """A batched module from a sequence of modules of the same structure."""
+    items = list(items)
+    if not items:
+        raise ValueError(f"`{what}` is an empty sequence.")
+    structures = {jax.tree.structure(eqx.filter(m, eqx.is_array)) for m in items}
+    if len(structures) != 1:
+        raise ValueError(
+            f"every element of `{what}` must be of the same type with the same "
+            "structure (e.g. all Sine, or all BoucWen with the same parameters given as "
+            f"laws); got {sorted({type(m).__name__ for m in items})}."
+        )
+    arrays = [eqx.filter(m, eqx.is_array) for m in items]
+    static = eqx.filter(items[0], eqx.is_array, inverse=True)
+    try:
+        stacked = jax.tree.map(lambda *xs: jnp.stack(xs), *arrays)
+    except ValueError as e:
+        raise ValueError(
+            f"the elements of `{what}` have arrays of different shapes: {e}"
+        ) from e
+    return eqx.combine(stacked, static), len(items)
+
+
+def _as_batch(value, convert, what: str):
+    """(module, size or None): a sequence or 1-D array becomes a batch."""
+    if isinstance(value, (list, tuple)):
+        return _stack([convert(v) for v in value], what)
+    if what == "current" and not isinstance(value, AbstractSignal):
+        array = as_float_array(value)
+        if array.ndim == 1:
+            return _stack([as_signal(c) for c in array], what)
+    return convert(value), None
+
+
+def _index(batched, size, indices):
+    if size is None:
+        return batched, None
+    arrays, static = eqx.partition(batched, eqx.is_array)
+    return eqx.combine(jax.tree.map(lambda a: a[indices], arrays), static), 0
+
+
+def _auto_batching(integrator) -> str:
+    # Measured (benchmarks/simulate_sweep.py): fixed-step scans vectorise well; adaptive
+    # solves under vmap run every member as long as the slowest, so they are mapped in
+    # chunks instead.
+    return "vmap" if isinstance(integrator, FixedStep) else "map"
+
+
+@eqx.filter_jit
+def _sweep_flat(damper, motion, current, axes, ts, integrator, batching, batch_size):
+    def one(d, m, c):
+        return _run(d, m, c, ts, integrator, None)
+
+    def local(d, m, c):
+        if batching == "vmap":
+            return jax.vmap(one, in_axes=axes)(d, m, c)
+        # lax.map needs every input batched: broadcast the unbatched ones cheaply.
+        n = _batch_length(d, m, c, axes)
+        args = [x if ax == 0 else _broadcast(x, n) for x, ax in zip((d, m, c), axes)]
+        return jax.lax.map(lambda a: one(*a), tuple(args), batch_size=batch_size)
+
+    devices = jax.local_devices()
+    n = _batch_length(damper, motion, current, axes)
+    if len(devices) > 1 and n % len(devices) == 0:
+        # One shard of the batch per local device, each mapped/vmapped locally.
+        mesh = Mesh(np.array(devices), ("batch",))
+        specs = tuple(
+            PartitionSpec("batch") if ax == 0 else PartitionSpec() for ax in axes
+        )
+        in_specs = tuple(
+            jax.tree.map(lambda _, s=spec: s, eqx.filter(x, eqx.is_array))
+            for x, spec in zip((damper, motion, current), specs)
+        )
+        arrays = [eqx.partition(x, eqx.is_array) for x in (damper, motion, current)]
+
+        def sharded(da, ma, ca):
+            d, m, c = (eqx.combine(a, s) for a, (_, s) in zip((da, ma, ca), arrays))
+            out = local(d, m, c)
+            return eqx.filter(out, eqx.is_array)
+
+        out_static = eqx.filter(
+            jax.eval_shape(local, damper, motion, current), eqx.is_array, inverse=True
+        )
+        out_arrays = jax.shard_map(
+            sharded,
+            mesh=mesh,
+            in_specs=in_specs,
+            out_specs=PartitionSpec("batch"),
+            check_vma=False,
+        )(*(a for a, _ in arrays))
+        return eqx.combine(out_arrays, out_static)
+    return local(damper, motion, current)
+
+
+def _batch_length(d, m, c, axes):
+    for x, ax in zip((d, m, c), axes):
+        if ax == 0:
+            return jax.tree.leaves(eqx.filter(x, eqx.is_array))[0].shape[0]
+    raise AssertionError("no batched argument")
+
+
+def _broadcast(x, n):
+    arrays, static = eqx.partition(x, eqx.is_array)
+    arrays = jax.tree.map(lambda a: jnp.broadcast_to(a, (n,) + a.shape), arrays)
+    return eqx.combine(arrays, static)
+
+
+def sweep(
+    device: Damper | AbstractHysteresis | Sequence[Damper | AbstractHysteresis],
+    motion: AbstractSignal | Sequence[AbstractSignal],
+    current: AbstractSignal | float | Sequence | Float[ArrayLike, " currents"],
+    ts: Float[ArrayLike, " times"],
+    *,
+    grid: bool = True,
+    integrator: AbstractIntegrator | None = None,
+    batching: Literal["auto", "vmap", "map"] = "auto",
+    batch_size: int | None = 64,
+    throw: bool = True,
+) -> Solution:
+    r"""Simulate many runs in one call: over currents, motions and parameter sets.
+
+    Any of `device`, `motion` and `current` may be a list (or tuple) of objects of the
+    same type; `current` may also be a 1-D array of constant currents [A]. With
+    `grid=True` (default) every combination runs and the solution's leading axes are the
+    lengths of the sequences, in the order device, motion, current (single objects add no
+    axis). With `grid=False` the sequences are zipped: they must have equal lengths and
+    give one leading axis.
+
+    Runs are batched the way that measured fastest on CPU: fixed-step integration under
+    `vmap`; adaptive integration with `lax.map` over chunks of `batch_size` vmapped runs
+    (an adaptive batch under vmap runs as long as its slowest member). With several
+    local devices (GPUs, or host devices from
+    `XLA_FLAGS=--xla_force_host_platform_device_count=N`) the batch is split across them
+    with `jax.shard_map` when its size divides evenly.
+
+    **Arguments:** as `simulate`, plus
+
+    - `grid`: outer product (True) or zip (False) of the sequences.
+    - `batching`: `"auto"`, `"vmap"` or `"map"`.
+    - `batch_size`: runs vmapped together inside `lax.map` (ignored by `"vmap"`).
+
+    **Returns:** a `Solution` whose arrays have the sweep's leading axes.
+    """
+    damper_in = device
+    if isinstance(device, (list, tuple)):
+        damper_in = [as_damper(d) for d in device]
+    _, _, _, integrator = _prepare(
+        damper_in[0] if isinstance(damper_in, list) else damper_in,
+        motion[0] if isinstance(motion, (list, tuple)) else motion,
+        0.0,
+        integrator,
+    )
+    ts = _check_times(ts)
+    if batching not in ("auto", "vmap", "map"):
+        raise ValueError(
+            f"`batching` must be 'auto', 'vmap' or 'map', got {batching!r}."
+        )
+    if batching == "auto":
+        batching = _auto_batching(integrator)
+
+    def as_motion(m):
+        if not isinstance(m, AbstractSignal):
+            raise TypeError(f"`motion` must be jaxmr signals, got {type(m).__name__}.")
+        return m
+
+    batches = [
+        _as_batch(damper_in, as_damper, "device"),
+        _as_batch(motion, as_motion, "motion"),
+        _as_batch(current, as_signal, "current"),
+    ]
+    sizes = [size for _, size in batches]
+    batched = [k for k, s in enumerate(sizes) if s is not None]
+    if not batched:
+        raise ValueError(
+            "sweep needs at least one sequence (of devices, motions or currents); for "
+            "a single run use `simulate`."
+        )
+    if grid:
+        shape = tuple(sizes[k] for k in batched)
+        grids = np.indices(shape).reshape(len(shape), -1)
+        index = {k: grids[j] for j, k in enumerate(batched)}
+    else:
+        lengths = {sizes[k] for k in batched}
+        if len(lengths) != 1:
+            raise ValueError(
+                "with grid=False the sequences are zipped and must have equal lengths, "
+                f"got lengths {[sizes[k] for k in batched]}."
+            )
+        shape = (lengths.pop(),)
+        index = {k: np.arange(shape[0]) for k in batched}
+    args, axes = [], []
+    for k, (module, size) in enumerate(batches):
+        module, axis = _index(module, size, index.get(k))
+        args.append(module)
+        axes.append(axis)
+    flat = _sweep_flat(*args, tuple(axes), ts, integrator, batching, batch_size)
+    if throw:
+        flat = _throw_batch(flat)
+    return jax.tree.map(lambda a: a.reshape(shape + a.shape[1:]), flat)
+
+
+@eqx.filter_jit
+def _throw_batch(sol):
+    return sol.result.error_if(sol, jnp.any(sol.result != RESULTS.successful))

@@ -1,0 +1,52 @@
+"""What a simulation returns: time series and a result code."""
+
+import diffrax as dfx
+import equinox as eqx
+
+from ._custom_types import Array, Float, Int
+
+
+class RESULTS(dfx.RESULTS):  # pyright: ignore[reportGeneralTypeIssues]
+    """Outcome codes of jaxmr's solves: diffrax's, and those jaxmr adds."""
+
+    nonfinite_force = (
+        "The simulated force is not finite: check the parameters (and, with FixedStep, "
+        "use more substeps or an adaptive integrator)."
+    )
+
+
+class Solution(eqx.Module):
+    """The result of `simulate` (or `sweep`: every array then has the sweep's leading
+    axes).
+
+    **Attributes:**
+
+    - `ts`: output times [s].
+    - `displacement`, `velocity`: the prescribed motion [m, m/s] (or [rad, rad/s]).
+    - `current`: the commanded current [A] (or voltage [V]).
+    - `effective_current`: what the model saw after the current dynamics [A or V].
+    - `force`: force [N] (or torque [N·m]).
+    - `states`: internal states, last axis named by `state_names`.
+    - `result`: a `jaxmr.RESULTS` code per run.
+    - `num_steps`: integrator steps taken per run.
+    - `state_names`: names of the internal states.
+    """
+
+    ts: Float[Array, "*batch times"]
+    displacement: Float[Array, "*batch times"]
+    velocity: Float[Array, "*batch times"]
+    current: Float[Array, "*batch times"]
+    effective_current: Float[Array, "*batch times"]
+    force: Float[Array, "*batch times"]
+    states: Float[Array, "*batch times states"]
+    result: RESULTS
+    num_steps: Int[Array, "*batch"]
+    state_names: tuple[str, ...] = eqx.field(static=True)
+
+    def state(self, name: str) -> Float[Array, "*batch times"]:
+        """One internal state by name (e.g. `"z"`)."""
+        if name not in self.state_names:
+            raise KeyError(
+                f"no state named {name!r}; this model's states are {self.state_names}."
+            )
+        return self.states[..., self.state_names.index(name)]

@@ -1,0 +1,8 @@
+"""Figures of simulated (and measured) loops. The only jaxmr module that imports
+matplotlib; it imports it when called, so `import jaxmr` stays light."""
+
+from ._loops import (
+    energy_vs_current as energy_vs_current,
+    loop as loop,
+    loops as loops,
+)

@@ -1,0 +1,130 @@
+"""Hysteresis loops of a sweep and energy per cycle against current."""
+
+from collections.abc import Sequence
+
+import numpy as np
+
+_AXES = {
+    "displacement": ("displacement", "Displacement"),
+    "velocity": ("velocity", "Velocity"),
+    "time": ("ts", "Time [s]"),
+}
+_UNITS = {
+    # (x unit, v unit, force unit, scale of x and v shown)
+    "linear": ("m", "m/s", "Force [N]", 1.0),
+    "linear_mm": ("mm", "mm/s", "Force [N]", 1e3),
+    "rotary": ("deg", "deg/s", "Torque [N·m]", 180 / np.pi),
+}
+
+
+def _pyplot():
+    # Imported on use: `import jaxmr` must not pull in matplotlib. Without a display
+    # matplotlib picks the Agg backend by itself.
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def loop(
+    solution,
+    against: str = "displacement",
+    *,
+    ax=None,
+    units: str = "linear",
+    labels: Sequence[str] | None = None,
+    last_cycles_from: float | None = None,
+    **line_kwargs,
+):
+    """Draw force (torque) against displacement, velocity or time for every run.
+
+    **Arguments:**
+
+    - `solution`: a `Solution` from `simulate` or a 1-axis `sweep` (or a flattened one).
+    - `against`: `"displacement"`, `"velocity"` or `"time"`.
+    - `ax`: a matplotlib Axes to draw on (a new figure when `None`).
+    - `units`: `"linear"` (m, N), `"linear_mm"` (mm, N) or `"rotary"` (deg, N·m: angles
+      in rad are shown in degrees).
+    - `labels`: one legend label per run.
+    - `last_cycles_from`: draw only samples with t ≥ this time [s] (drop the transient).
+
+    **Returns:** the Axes.
+    """
+    if against not in _AXES:
+        raise ValueError(f"`against` must be one of {sorted(_AXES)}, got {against!r}.")
+    if units not in _UNITS:
+        raise ValueError(f"`units` must be one of {sorted(_UNITS)}, got {units!r}.")
+    plt = _pyplot()
+    if ax is None:
+        _, ax = plt.subplots(figsize=(5, 4))
+    field, name = _AXES[against]
+    x_unit, v_unit, force_label, scale = _UNITS[units]
+    xs = np.asarray(getattr(solution, field))
+    ts = np.asarray(solution.ts)
+    force = np.asarray(solution.force)
+    xs, ts, force = (a.reshape(-1, a.shape[-1]) for a in (xs, ts, force))
+    if against != "time":
+        xs = xs * scale
+    if labels is not None and len(labels) != force.shape[0]:
+        raise ValueError(
+            f"`labels` has {len(labels)} entries for {force.shape[0]} runs."
+        )
+    for k in range(force.shape[0]):
+        keep = slice(None)
+        if last_cycles_from is not None:
+            keep = ts[k] >= last_cycles_from
+        label = None if labels is None else labels[k]
+        ax.plot(xs[k][keep], force[k][keep], label=label, **line_kwargs)
+    unit = {"displacement": x_unit, "velocity": v_unit, "time": "s"}[against]
+    ax.set_xlabel(f"{name} [{unit}]" if against != "time" else name)
+    ax.set_ylabel(force_label)
+    ax.grid(True, alpha=0.3)
+    if labels is not None:
+        ax.legend(fontsize="small")
+    return ax
+
+
+def loops(
+    solution,
+    *,
+    units: str = "linear",
+    labels: Sequence[str] | None = None,
+    last_cycles_from: float | None = None,
+    title: str | None = None,
+):
+    """Three panels for a sweep: force against displacement, velocity and time.
+
+    **Returns:** the matplotlib Figure.
+    """
+    plt = _pyplot()
+    fig, axes = plt.subplots(1, 3, figsize=(14, 4), constrained_layout=True)
+    for ax, against in zip(axes, ("displacement", "velocity", "time")):
+        loop(
+            solution,
+            against,
+            ax=ax,
+            units=units,
+            labels=labels if against == "time" else None,
+            last_cycles_from=last_cycles_from,
+        )
+    if title:
+        fig.suptitle(title)
+    return fig
+
+
+def energy_vs_current(
+    currents, energies, *, ax=None, label: str | None = None, current_unit: str = "A"
+):
+    """Energy dissipated per cycle [J] against current (or voltage).
+
+    **Returns:** the Axes.
+    """
+    plt = _pyplot()
+    if ax is None:
+        _, ax = plt.subplots(figsize=(5, 4))
+    ax.plot(np.asarray(currents), np.asarray(energies), "o-", label=label)
+    ax.set_xlabel(f"Current [{current_unit}]")
+    ax.set_ylabel("Energy dissipated per cycle [J]")
+    ax.grid(True, alpha=0.3)
+    if label:
+        ax.legend()
+    return ax
