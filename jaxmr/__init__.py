@@ -24,7 +24,6 @@ from ._hysteresis import (
     Spencer as Spencer,
 )
 from ._integrate import (
-    RK4 as RK4,
     AbstractIntegrator as AbstractIntegrator,
     Adaptive as Adaptive,
     FixedStep as FixedStep,

@@ -11,7 +11,7 @@ from typing import ClassVar
 import equinox as eqx
 import jax.numpy as jnp
 
-from ._custom_types import Array, Float, Scalar, State
+from ._custom_types import Array, Bool, Float, Scalar, State
 from ._misc import as_float_array, check_concrete
 
 
@@ -33,6 +33,11 @@ class AbstractCurrentDynamics(eqx.Module):
     def effective(self, state: State) -> Scalar:
         """The effective current [A or V] for this state."""
 
+    def constraints(self) -> list[tuple[Bool[Array, ""], str]]:
+        """Validity checks `(ok, message)` of the parameters; `simulate` raises the
+        message of a failing one (for parameters only known under jit)."""
+        return []
+
 
 class FirstOrderLag(AbstractCurrentDynamics):
     r"""First-order lag $\dot u = -\eta\,(u - i_\mathrm{cmd})$.
@@ -49,12 +54,16 @@ class FirstOrderLag(AbstractCurrentDynamics):
     state_names: ClassVar[tuple[str, ...]] = ("u",)
 
     def __check_init__(self):
-        check_concrete(
-            self.rate > 0,
-            f"FirstOrderLag: `rate` must be positive (1/time constant in 1/s), got "
-            f"{self.rate}.",
-            self.rate,
-        )
+        for ok, message in self.constraints():
+            check_concrete(ok, f"FirstOrderLag: {message}", self.rate)
+
+    def constraints(self):
+        return [
+            (
+                self.rate > 0,
+                f"`rate` must be positive (1/time constant in 1/s), got {self.rate}.",
+            )
+        ]
 
     def initial_state(self, command: Scalar) -> State:
         return jnp.reshape(command, (1,)).astype(self.rate.dtype)

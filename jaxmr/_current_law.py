@@ -118,6 +118,12 @@ class TableLaw(AbstractCurrentLaw):
         if self.currents.shape[0] < 1:
             raise ValueError("TableLaw: give at least one (current, value) pair.")
         check_concrete(
+            jnp.all(jnp.isfinite(self.currents)) & jnp.all(jnp.isfinite(self.values)),
+            "TableLaw: `currents` and `values` must be finite (no NaN or inf).",
+            self.currents,
+            self.values,
+        )
+        check_concrete(
             jnp.all(jnp.diff(self.currents) > 0),
             "TableLaw: `currents` must be strictly increasing; sort the table by "
             f"current (got {self.currents}).",

@@ -50,5 +50,7 @@ def check_concrete(condition_ok, message: str, *values) -> None:
     that says how to fix them; parameters that are traced (inside a fit) are checked by
     the simulation's runtime checks instead.
     """
-    if is_concrete(*values) and not bool(np.all(np.asarray(condition_ok))):
+    # A condition computed under an outer trace (a module built inside jit from closed-over
+    # constants) is a tracer even when the values are not: leave it to the runtime checks.
+    if is_concrete(*values, condition_ok) and not bool(np.all(np.asarray(condition_ok))):
         raise ValueError(message)

@@ -39,24 +39,36 @@ class AbstractSignal(eqx.Module):
         finite."""
         leaves = [x for x in jax.tree.leaves(self) if eqx.is_array(x)]
         finite = jnp.all(jnp.array([jnp.all(jnp.isfinite(x)) for x in leaves]))
-        return [(finite, f"{type(self).__name__}: its data contain NaN or inf.")]
+        return [
+            (
+                finite,
+                f"{type(self).__name__}: its data contain NaN or inf; give finite "
+                "numbers (repair or drop bad samples).",
+            )
+        ]
 
 
-def as_signal(x) -> AbstractSignal:
-    """A signal from a signal or a number (a constant)."""
+def as_signal(x, name: str = "current") -> AbstractSignal:
+    """A signal from a signal or a number (a constant); `name` is the argument's name
+    in error messages."""
     if isinstance(x, AbstractSignal):
         return x
-    try:
-        value = as_float_array(x)
-    except TypeError as e:
+    if isinstance(x, (str, bytes)) or x is None:
+        value = None
+    else:
+        try:
+            value = as_float_array(x)
+        except (TypeError, ValueError):
+            value = None
+    if value is None:
         raise TypeError(
-            "expected a jaxmr signal (Constant, Sine, Steps, Sampled, ...) or a number, "
-            f"got {type(x).__name__}."
-        ) from e
+            f"`{name}` must be a jaxmr signal (Constant, Sine, Steps, Sampled, ...) or "
+            f"a number, got {type(x).__name__}."
+        )
     if value.ndim != 0:
         raise ValueError(
-            "a constant current or motion must be a scalar; for a sweep over several "
-            f"values use `sweep`, got shape {value.shape}."
+            f"`{name}` as a number must be a scalar (a constant); for a sweep over "
+            f"several values use `sweep`, got shape {value.shape}."
         )
     return Constant(value)
 
@@ -243,9 +255,18 @@ class Steps(AbstractSignal):
                 "Steps: `times` and `values` must be 1-D arrays of equal length, got "
                 f"shapes {self.times.shape} and {self.values.shape}."
             )
+        if self.times.shape[0] < 1:
+            raise ValueError("Steps: give at least one (time, value) pair.")
+        check_concrete(
+            jnp.all(jnp.isfinite(self.times)) & jnp.all(jnp.isfinite(self.values)),
+            "Steps: `times` and `values` must be finite (no NaN or inf).",
+            self.times,
+            self.values,
+        )
         check_concrete(
             jnp.all(jnp.diff(self.times) > 0),
-            "Steps: `times` must be strictly increasing.",
+            "Steps: `times` must be strictly increasing; sort the switching times and "
+            "merge repeated ones.",
             self.times,
         )
 
@@ -297,6 +318,11 @@ class Sampled(AbstractSignal):
         if self.times.shape[0] < 2:
             raise ValueError("Sampled: give at least two samples.")
         check_concrete(
+            jnp.all(jnp.isfinite(self.times)),
+            "Sampled: `times` contain NaN or inf; give finite sample times.",
+            self.times,
+        )
+        check_concrete(
             jnp.all(jnp.diff(self.times) > 0),
             "Sampled: `times` must be strictly increasing (sort the samples, drop "
             "repeated time stamps).",
@@ -307,6 +333,13 @@ class Sampled(AbstractSignal):
             "Sampled: `values` contain NaN or inf; remove or repair those samples.",
             self.values,
         )
+        if self.derivatives is not None:
+            check_concrete(
+                jnp.all(jnp.isfinite(self.derivatives)),
+                "Sampled: `derivatives` contain NaN or inf; remove or repair those "
+                "samples (or pass derivatives=None to use the interpolant's slope).",
+                self.derivatives,
+            )
 
     def _locate(self, t):
         k = jnp.clip(
@@ -323,11 +356,7 @@ class Sampled(AbstractSignal):
         if self.derivatives is None:
             return y0 + s * (y1 - y0)
         d0, d1 = self.derivatives[k] * h, self.derivatives[k + 1] * h
-        h00 = 2 * s**3 - 3 * s**2 + 1
-        h10 = s**3 - 2 * s**2 + s
-        h01 = -2 * s**3 + 3 * s**2
-        h11 = s**3 - s**2
-        return h00 * y0 + h10 * d0 + h01 * y1 + h11 * d1
+        return _hermite(s, y0, y1, d0, d1)
 
     def derivative(self, t):
         k, h, s = self._locate(t)
@@ -344,4 +373,34 @@ class Sampled(AbstractSignal):
         return jnp.where(inside, slope, 0.0)
 
     def bounds(self):
-        return jnp.min(self.values), jnp.max(self.values)
+        if self.derivatives is None:
+            return jnp.min(self.values), jnp.max(self.values)
+        # The cubic pieces overshoot the samples: take each piece's extremes, at its
+        # ends and where its derivative (a quadratic in s) vanishes inside [0, 1].
+        h = jnp.diff(self.times)
+        y0, y1 = self.values[:-1], self.values[1:]
+        d0, d1 = self.derivatives[:-1] * h, self.derivatives[1:] * h
+        a = 6 * y0 + 3 * d0 - 6 * y1 + 3 * d1
+        b = -6 * y0 - 4 * d0 + 6 * y1 - 2 * d1
+        c = d0
+        discriminant = b**2 - 4 * a * c
+        root = jnp.sqrt(jnp.maximum(discriminant, 0.0))
+        q = -0.5 * (b + jnp.where(b >= 0, root, -root))  # stable quadratic roots
+        real = discriminant >= 0
+        s1 = jnp.where(real & (a != 0), q / jnp.where(a != 0, a, 1.0), 0.0)
+        s2 = jnp.where(real & (q != 0), c / jnp.where(q != 0, q, 1.0), 0.0)
+        candidates = [jnp.zeros_like(h), jnp.ones_like(h), s1, s2]
+        values = jnp.stack(
+            [_hermite(jnp.clip(s, 0.0, 1.0), y0, y1, d0, d1) for s in candidates]
+        )
+        return jnp.min(values), jnp.max(values)
+
+
+def _hermite(s, y0, y1, d0, d1):
+    """Cubic Hermite interpolant on [0, 1] with end values y0, y1 and end slopes d0, d1
+    (derivatives times the interval length)."""
+    h00 = 2 * s**3 - 3 * s**2 + 1
+    h10 = s**3 - 2 * s**2 + s
+    h01 = -2 * s**3 + 3 * s**2
+    h11 = s**3 - s**2
+    return h00 * y0 + h10 * d0 + h01 * y1 + h11 * d1

@@ -9,6 +9,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax.sharding import Mesh, PartitionSpec
 
+from ._current_law import is_law
 from ._custom_types import ArrayLike, Float
 from ._damper import Damper, as_damper
 from ._hysteresis import AbstractHysteresis
@@ -19,6 +20,11 @@ from ._solution import RESULTS, Solution
 
 
 def _check_times(ts) -> jax.Array:
+    with jax.ensure_compile_time_eval():
+        return _check_times_now(ts)
+
+
+def _check_times_now(ts) -> jax.Array:
     ts = as_float_array(ts)
     if ts.ndim != 1 or ts.shape[0] < 2:
         raise ValueError(
@@ -26,39 +32,70 @@ def _check_times(ts) -> jax.Array:
             f"{ts.shape}."
         )
     if is_concrete(ts):
-        if not bool(jnp.all(jnp.isfinite(ts))):
-            raise ValueError("`ts` contains NaN or inf; give finite output times.")
-        if not bool(jnp.all(jnp.diff(ts) > 0)):
-            k = int(jnp.argmin(jnp.diff(ts)))
+        # numpy, not jnp: inside a caller's jit, jnp on a closed-over concrete array
+        # gives a tracer, which cannot be tested here.
+        values = np.asarray(ts)
+        if not np.all(np.isfinite(values)):
+            k = int(np.argmin(np.isfinite(values)))
             raise ValueError(
-                f"`ts` must be strictly increasing, but ts[{k}] = {float(ts[k])} >= ts[{k + 1}] = {float(ts[k + 1])}; sort "
-                "the times and drop duplicates."
+                f"`ts` contains NaN or inf (ts[{k}] = {values[k]}); give finite "
+                "output times."
+            )
+        steps = np.diff(values)
+        if not np.all(steps > 0):
+            k = int(np.argmin(steps > 0))
+            raise ValueError(
+                f"`ts` must be strictly increasing, but ts[{k}] = {values[k]} >= "
+                f"ts[{k + 1}] = {values[k + 1]}; sort the times and drop duplicates."
             )
     return ts
+
+
+def _runtime_message(message: str) -> str:
+    """A constraint's message without the value it quotes when that value is a tracer
+    (its repr, e.g. `JitTracer(float64[])`, says nothing to the user)."""
+    if "Tracer" in message or "Traced<" in message:
+        head, _, _ = message.partition(", got ")
+        return head.rstrip(".") + "."
+    return message
 
 
 def _runtime_checks(damper: Damper, motion, current, ts):
     """Checks of values only known under jit: they raise with these messages."""
     checks = [
-        (jnp.all(jnp.diff(ts) > 0), "`ts` must be strictly increasing."),
-        (jnp.all(jnp.isfinite(ts)), "`ts` contains NaN or inf."),
+        (
+            jnp.all(jnp.isfinite(ts)),
+            "`ts` contains NaN or inf; give finite output times.",
+        ),
+        (
+            jnp.all(jnp.diff(ts) > 0),
+            "`ts` must be strictly increasing; sort the times and drop duplicates.",
+        ),
     ]
-    checks += [(ok, f"motion: {m}") for ok, m in motion.checks()]
-    checks += [(ok, f"current: {m}") for ok, m in current.checks()]
+    checks += [(ok, f"`motion`: {m}") for ok, m in motion.checks()]
+    checks += [(ok, f"`current`: {m}") for ok, m in current.checks()]
     lo, hi = current.bounds()
     for law_lo, law_hi in damper.current_ranges():
         checks.append(
             (
                 (lo >= law_lo) & (hi <= law_hi),
-                "the current leaves the range of a TableLaw of the model; extend the "
-                "table or keep the current inside it.",
+                "`current` leaves the current range of a TableLaw in the model (laws "
+                "are not extrapolated); extend the table or keep the current inside "
+                "it.",
             )
         )
     name = type(damper.hysteresis).__name__
+    if any(is_law(p) for p in jax.tree.leaves(damper.hysteresis, is_leaf=is_law)):
+        name += " (its current laws evaluated at the current at ts[0])"
     at_start = damper.hysteresis.at(current(ts[0]))
     checks += [(ok, f"{name}: {m}") for ok, m in at_start.constraints()]
+    if damper.dynamics is not None:
+        dynamics = damper.dynamics
+        checks += [
+            (ok, f"{type(dynamics).__name__}: {m}") for ok, m in dynamics.constraints()
+        ]
     for ok, message in checks:
-        ts = eqx.error_if(ts, jnp.logical_not(ok), message)
+        ts = eqx.error_if(ts, jnp.logical_not(ok), _runtime_message(message))
     return ts
 
 
@@ -111,13 +148,19 @@ def _simulate(damper, motion, current, ts, integrator, initial_state, throw):
 
 
 def _prepare(device, motion, current, integrator):
+    if not isinstance(device, (Damper, AbstractHysteresis)):
+        raise TypeError(
+            "`device` must be a jaxmr Damper or hysteresis model, e.g. "
+            f"BoucWen(...) or Damper(BoucWen(...), FirstOrderLag(rate)); got "
+            f"{type(device).__name__}."
+        )
     damper = as_damper(device)
     if not isinstance(motion, AbstractSignal):
         raise TypeError(
             "`motion` must be a jaxmr signal of displacement [m] or angle [rad], e.g. "
             f"Sine(amplitude, frequency) or Sampled(t, x); got {type(motion).__name__}."
         )
-    current = as_signal(current)
+    current = as_signal(current, "current")
     integrator = Adaptive() if integrator is None else integrator
     if not isinstance(integrator, AbstractIntegrator):
         raise TypeError(

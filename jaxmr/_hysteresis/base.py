@@ -59,5 +59,7 @@ class AbstractHysteresis(eqx.Module):
             return
         if not is_concrete(self):
             return
-        for ok, message in self.constraints():
+        with jax.ensure_compile_time_eval():
+            constraints = self.constraints()
+        for ok, message in constraints:
             check_concrete(ok, f"{type(self).__name__}: {message}", self)

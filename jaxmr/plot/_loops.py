@@ -4,16 +4,12 @@ from collections.abc import Sequence
 
 import numpy as np
 
-_AXES = {
-    "displacement": ("displacement", "Displacement"),
-    "velocity": ("velocity", "Velocity"),
-    "time": ("ts", "Time [s]"),
-}
+_AXES = {"displacement": "displacement", "velocity": "velocity", "time": "ts"}
 _UNITS = {
-    # (x unit, v unit, force unit, scale of x and v shown)
-    "linear": ("m", "m/s", "Force [N]", 1.0),
-    "linear_mm": ("mm", "mm/s", "Force [N]", 1e3),
-    "rotary": ("deg", "deg/s", "Torque [N·m]", 180 / np.pi),
+    # (x label, v label, force label, scale of x and v shown)
+    "linear": ("Displacement [m]", "Velocity [m/s]", "Force [N]", 1.0),
+    "linear_mm": ("Displacement [mm]", "Velocity [mm/s]", "Force [N]", 1e3),
+    "rotary": ("Angle [deg]", "Angular velocity [deg/s]", "Torque [N·m]", 180 / np.pi),
 }
 
 
@@ -55,9 +51,9 @@ def loop(
         raise ValueError(f"`units` must be one of {sorted(_UNITS)}, got {units!r}.")
     plt = _pyplot()
     if ax is None:
-        _, ax = plt.subplots(figsize=(5, 4))
-    field, name = _AXES[against]
-    x_unit, v_unit, force_label, scale = _UNITS[units]
+        _, ax = plt.subplots(figsize=(5, 4), layout="constrained")
+    field = _AXES[against]
+    x_label, v_label, force_label, scale = _UNITS[units]
     xs = np.asarray(getattr(solution, field))
     ts = np.asarray(solution.ts)
     force = np.asarray(solution.force)
@@ -68,14 +64,20 @@ def loop(
         raise ValueError(
             f"`labels` has {len(labels)} entries for {force.shape[0]} runs."
         )
+    keep = np.ones(ts.shape, dtype=bool)
+    if last_cycles_from is not None:
+        keep = ts >= last_cycles_from
+        if not np.all(np.any(keep, axis=-1)):
+            raise ValueError(
+                f"`last_cycles_from` = {last_cycles_from} s leaves no samples to draw: "
+                f"a run ends at t = {float(np.min(ts[:, -1]))} s."
+            )
     for k in range(force.shape[0]):
-        keep = slice(None)
-        if last_cycles_from is not None:
-            keep = ts[k] >= last_cycles_from
         label = None if labels is None else labels[k]
-        ax.plot(xs[k][keep], force[k][keep], label=label, **line_kwargs)
-    unit = {"displacement": x_unit, "velocity": v_unit, "time": "s"}[against]
-    ax.set_xlabel(f"{name} [{unit}]" if against != "time" else name)
+        ax.plot(xs[k][keep[k]], force[k][keep[k]], label=label, **line_kwargs)
+    ax.set_xlabel(
+        {"displacement": x_label, "velocity": v_label, "time": "Time [s]"}[against]
+    )
     ax.set_ylabel(force_label)
     ax.grid(True, alpha=0.3)
     if labels is not None:
@@ -96,7 +98,7 @@ def loops(
     **Returns:** the matplotlib Figure.
     """
     plt = _pyplot()
-    fig, axes = plt.subplots(1, 3, figsize=(14, 4), constrained_layout=True)
+    fig, axes = plt.subplots(1, 3, figsize=(14, 4), layout="constrained")
     for ax, against in zip(axes, ("displacement", "velocity", "time")):
         loop(
             solution,
@@ -120,7 +122,7 @@ def energy_vs_current(
     """
     plt = _pyplot()
     if ax is None:
-        _, ax = plt.subplots(figsize=(5, 4))
+        _, ax = plt.subplots(figsize=(5, 4), layout="constrained")
     ax.plot(np.asarray(currents), np.asarray(energies), "o-", label=label)
     ax.set_xlabel(f"Current [{current_unit}]")
     ax.set_ylabel("Energy dissipated per cycle [J]")
