@@ -18,6 +18,7 @@ import jax
 import numpy as np
 
 import jaxmr
+import jaxmr.plot  # light: it imports matplotlib only when it draws
 
 
 class CLIError(Exception):
@@ -97,8 +98,6 @@ def _demo(args: argparse.Namespace) -> int:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-
-    import jaxmr.plot
 
     currents = np.array(DEMO_CURRENTS)
     period = 1 / DEMO_FREQUENCY

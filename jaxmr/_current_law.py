@@ -12,7 +12,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 
-from ._custom_types import Array, Float, Scalar
+from ._custom_types import Array, Float, Scalar, ScalarLike
 from ._misc import as_float_array, check_concrete
 
 
@@ -141,8 +141,9 @@ def is_law(x) -> bool:
     return isinstance(x, AbstractCurrentLaw)
 
 
-def resolve(tree, current: Scalar):
+def resolve(tree, current: ScalarLike):
     """Replace every current law inside `tree` by its value at `current`."""
+    current = jnp.asarray(current)
     return jax.tree.map(lambda p: p(current) if is_law(p) else p, tree, is_leaf=is_law)
 
 

@@ -76,6 +76,16 @@ class Damper(eqx.Module):
         model = self.hysteresis.at(self.effective_current(state, command))
         return model.force(state[: self._split], x, v)
 
+    def state_bounds(self, state: State, command: Scalar):
+        """Bounds on `|state|` at this state's effective current (inf: unbounded), or
+        `None` when the hysteresis law states none."""
+        model = self.hysteresis.at(self.effective_current(state, command))
+        bounds = model.state_bounds()
+        if bounds is None:
+            return None
+        extra = len(state) - self._split
+        return jnp.concatenate([bounds, jnp.full((extra,), jnp.inf, bounds.dtype)])
+
     def current_ranges(self):
         """Validity ranges of the laws (tables) of the hysteresis model."""
         return law_ranges(self.hysteresis)

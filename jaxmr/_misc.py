@@ -52,5 +52,7 @@ def check_concrete(condition_ok, message: str, *values) -> None:
     """
     # A condition computed under an outer trace (a module built inside jit from closed-over
     # constants) is a tracer even when the values are not: leave it to the runtime checks.
-    if is_concrete(*values, condition_ok) and not bool(np.all(np.asarray(condition_ok))):
+    if is_concrete(*values, condition_ok) and not bool(
+        np.all(np.asarray(condition_ok))
+    ):
         raise ValueError(message)

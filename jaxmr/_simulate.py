@@ -127,6 +127,16 @@ def _run(damper, motion, current, ts, integrator, initial_state) -> Solution:
     result = RESULTS.where(
         (result == RESULTS.successful) & ~force_ok, RESULTS.nonfinite_force, result
     )
+    if ys.shape[1] > 0 and damper.state_bounds(ys[0], i[0]) is not None:
+        # A fixed-step solve can diverge to large finite values; 1 % slack covers the
+        # integrator's own overshoot of a saturating state.
+        bounds = jax.vmap(damper.state_bounds)(ys, i)
+        inside = jnp.all(jnp.abs(ys) <= 1.01 * bounds + 1e-12)
+        result = RESULTS.where(
+            (result == RESULTS.successful) & ~inside,
+            RESULTS.state_out_of_bounds,
+            result,
+        )
     return Solution(
         ts=ts,
         displacement=x,

@@ -9,6 +9,10 @@ from ._custom_types import Array, Float, Int
 class RESULTS(dfx.RESULTS):  # pyright: ignore[reportGeneralTypeIssues]
     """Outcome codes of jaxmr's solves: diffrax's, and those jaxmr adds."""
 
+    state_out_of_bounds = (
+        "An internal state left its theoretical bound (e.g. |z| > z0 of Bouc-Wen): the "
+        "integration diverged. With FixedStep use more substeps, or use Adaptive()."
+    )
     nonfinite_force = (
         "The simulated force is not finite: check the parameters (and, with FixedStep, "
         "use more substeps or an adaptive integrator)."

@@ -8,7 +8,7 @@ import jax
 import jax.numpy as jnp
 
 from .._current_law import is_law, resolve
-from .._custom_types import Array, Bool, Scalar, State
+from .._custom_types import Array, Bool, Scalar, ScalarLike, State
 from .._misc import check_concrete, is_concrete
 
 
@@ -28,9 +28,9 @@ class AbstractHysteresis(eqx.Module):
 
     state_names: ClassVar[tuple[str, ...]] = ()
 
-    def at(self, current: Scalar) -> "AbstractHysteresis":
+    def at(self, current: ScalarLike) -> "AbstractHysteresis":
         """This model with every current law evaluated at `current` [A or V]."""
-        return resolve(self, current)
+        return resolve(self, jnp.asarray(current))
 
     def initial_state(self, x: Scalar, v: Scalar) -> State:
         """The internal state at the start of a simulation (zeros: a virgin device)."""
@@ -44,6 +44,16 @@ class AbstractHysteresis(eqx.Module):
     @abc.abstractmethod
     def force(self, state: State, x: Scalar, v: Scalar) -> Scalar:
         """$F$ [N] (or torque [N·m]), with resolved parameters."""
+
+    def state_bounds(self) -> Array | None:
+        """Theoretical bounds on `|state|`, one per state (inf where unbounded), for
+        resolved parameters; `None` when the model states none.
+
+        `simulate` flags a run whose state leaves its bound by more than 1 % as
+        `RESULTS.state_out_of_bounds`: a fixed-step integration that diverged without
+        reaching inf.
+        """
+        return None
 
     def constraints(self) -> list[tuple[Bool[Array, ""], str]]:
         """Physical-validity checks for resolved parameters: `(ok, message)` pairs.

@@ -30,9 +30,11 @@ class BoucWen(AbstractHysteresis):
     $|v|$ term, $\beta$ on the $v$ term, as Spencer 1997 and the SAS study do).
 
     With $\gamma \ge 0$, $\beta + \gamma > 0$, $A > 0$ and $|z(0)| \le z_0$ the state
-    stays in $|z| \le z_0 = (A / (\beta + \gamma))^{1/n}$. The energy dissipated per
-    cycle by the $z$ term is positive for $\gamma > 0$; with $\gamma \ll \beta$ (the SAS
-    brake) $z$ is almost a function of $x$ and the loop is thin.
+    stays in $|z| \le z_0 = (A / (\beta + \gamma))^{1/n}$. After a reversal $z$ leaves
+    saturation at the rate $A - (\beta - \gamma) z_0^n = 2\gamma A / (\beta + \gamma)$ per
+    unit of $x$: with $\gamma \ll \beta$ (the SAS brake) it lingers near $z_0$, then
+    flips within a fraction of a degree, so the loop is nearly rectangular (friction-like)
+    and the solution is sensitive where $z$ crosses zero.
 
     The set $(\alpha, A, \beta, \gamma)$ is redundant: $z \to z/s$ maps it to
     $(\alpha s, A/s, \beta s^{n-1}, \gamma s^{n-1})$ with the same force. Fix one of them
@@ -69,6 +71,9 @@ class BoucWen(AbstractHysteresis):
     def force(self, state: State, x: Scalar, v: Scalar) -> Scalar:
         z = state[0]
         return self.alpha * z + self.c0 * v + self.k0 * (x - self.x0) + self.f0
+
+    def state_bounds(self) -> Array:
+        return self.z_bound()[None]
 
     def z_bound(self) -> Array:
         """$z_0 = (A/(\\beta+\\gamma))^{1/n}$, the bound on $|z|$ (resolved parameters)."""
@@ -125,7 +130,8 @@ class NormalizedBoucWen(AbstractHysteresis):
     $\sigma = \gamma/(\beta+\gamma)$, $\kappa_w = \alpha z_0$, $\kappa_x = k_0$.
     (Ikhouane's papers put $\beta$ on the $|v|$ term, hence their $\sigma = \beta/(\beta+\gamma)$.)
     Their "physical" class is $\rho > 0$, $\sigma \ge 1/2$, $n \ge 1$; the SAS brake has
-    $\sigma \approx 0.001$, a nearly non-hysteretic $w(x)$.
+    $\sigma \approx 0.001$ and $n = 0.9$, outside it ($w$ lingers at $\pm 1$ after a
+    reversal, then flips quickly). For any $\sigma \ge 0$, $|w| \le 1$.
 
     **Arguments:**
 
@@ -160,6 +166,9 @@ class NormalizedBoucWen(AbstractHysteresis):
     def force(self, state: State, x: Scalar, v: Scalar) -> Scalar:
         w = state[0]
         return self.kappa_x * (x - self.x0) + self.kappa_w * w + self.c0 * v + self.f0
+
+    def state_bounds(self) -> Array:
+        return jnp.ones((1,), dtype=jnp.result_type(self.rho))
 
     def constraints(self):
         return [

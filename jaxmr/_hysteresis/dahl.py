@@ -38,5 +38,8 @@ class Dahl(AbstractHysteresis):
     def force(self, state: State, x: Scalar, v: Scalar) -> Scalar:
         return self.k_x * v + self.k_w * state[0]
 
+    def state_bounds(self):
+        return jnp.ones((1,), dtype=jnp.result_type(self.rho))
+
     def constraints(self):
         return [(self.rho > 0, f"`rho` must be > 0, got {self.rho}.")]

@@ -55,6 +55,10 @@ class LuGre(AbstractHysteresis):
         y = state[0]
         return self.sigma0 * y + self.sigma1 * self._rate(y, v) + self.sigma2 * v
 
+    def state_bounds(self):
+        # y → g(v)/σ0 at steady sliding and g ≤ max(F_c, F_s).
+        return (jnp.maximum(self.F_c, self.F_s) / self.sigma0)[None]
+
     def constraints(self):
         return [
             (self.sigma0 > 0, f"`sigma0` must be > 0, got {self.sigma0}."),

@@ -61,6 +61,10 @@ class Spencer(AbstractHysteresis):
         z, y = state[0], state[1]
         return self.c1 * self._y_rate(z, y, x, v) + self.k1 * (x - self.x0)
 
+    def state_bounds(self):
+        z0 = (self.A / (self.beta + self.gamma)) ** (1 / self.n)
+        return jnp.stack([z0, jnp.full_like(z0, jnp.inf)])
+
     def constraints(self):
         return [
             (self.n > 0, f"the exponent `n` must be > 0, got {self.n}."),

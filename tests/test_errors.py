@@ -1,0 +1,474 @@
+"""Bad input gets a clear error naming the argument and the fix; solver failure comes
+back as a result code (`throw=False`) or a readable exception (`throw=True`).
+
+Errors about values that are known before the simulation (concrete arrays) are raised
+at once as `ValueError`/`TypeError`. Values only known under `jit` are checked inside
+the compiled simulation with `equinox.error_if`, which raises
+`equinox.EquinoxRuntimeError` (a `RuntimeError`) from `eqx.filter_jit`; from a caller's
+`jax.jit` it arrives as `jax.errors.JaxRuntimeError` (also a `RuntimeError`) whose text
+contains the same message.
+
+The test suite runs with jaxtyping + beartype checking jaxmr's signatures, which rejects
+a wrong type (or a 2-D `ts`) before jaxmr's own check does. Both name the argument:
+beartype as "parameter 'motion'", jaxmr as "`motion`". Those tests accept either.
+"""
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import jaxmr
+
+MOTION = jaxmr.Sine(0.01, 2.0)  # 10 mm, 2 Hz: peak velocity 0.126 m/s
+TS = jnp.linspace(0.0, 0.5, 11)
+# One RK4 step per 50 ms output interval: cheap to compile, and stable for the
+# moderate Bouc-Wen below (h * |df/dz| ~ 0.1).
+FIXED = jaxmr.FixedStep(substeps=1)
+
+
+def bouc_wen(**changes):
+    parameters = dict(alpha=100.0, c0=10.0, A=1.0, beta=50.0, gamma=50.0, n=2.0)
+    parameters.update(changes)
+    return jaxmr.BoucWen(**parameters)
+
+
+def names(argument: str) -> str:
+    """Regex for a message naming `argument` the way jaxmr (`x`) or beartype ('x') do."""
+    return rf"[`']{argument}[`']"
+
+
+@eqx.filter_jit
+def traced_force(model, motion, current, ts):
+    """A caller's jitted function: every array in its arguments is traced."""
+    return jaxmr.simulate(model, motion, current, ts, integrator=FIXED).force
+
+
+# ---------------------------------------------------------------------------------------
+# Output times
+
+
+@pytest.mark.parametrize(
+    "ts, match",
+    [
+        (
+            jnp.array([0.0, 0.1, 0.1, 0.2]),
+            r"`ts` must be strictly increasing, but ts\[1\] = 0.1 >= ts\[2\] = 0.1",
+        ),
+        (jnp.array([0.0, 0.2, 0.1]), r"`ts` must be strictly increasing.*sort"),
+        (jnp.array([0.0, jnp.nan, 0.2]), r"`ts` contains NaN or inf \(ts\[1\]"),
+        (jnp.array([0.0, 0.1, jnp.inf]), r"`ts` contains NaN or inf"),
+        (jnp.array([0.0]), r"`ts` must be a 1-D array of at least two output times"),
+    ],
+    ids=["repeated", "decreasing", "nan", "inf", "one-element"],
+)
+def test_bad_ts(ts, match):
+    with pytest.raises(ValueError, match=match):
+        jaxmr.simulate(bouc_wen(), MOTION, 0.0, ts)
+
+
+def test_two_dimensional_ts():
+    with pytest.raises((TypeError, ValueError), match=names("ts")):
+        jaxmr.simulate(bouc_wen(), MOTION, 0.0, jnp.zeros((2, 3)))
+
+
+def test_missing_ts():
+    with pytest.raises(ValueError, match=r"`ts` is required"):
+        jaxmr.simulate(bouc_wen(), MOTION, 0.0)
+
+
+def test_bad_ts_in_sweep():
+    with pytest.raises(ValueError, match=r"`ts` must be strictly increasing"):
+        jaxmr.sweep(bouc_wen(), MOTION, [0.0, 1.0], jnp.array([0.0, 0.2, 0.1]))
+
+
+def test_ts_closed_over_in_callers_jit_is_checked_before_tracing():
+    # Inside a caller's jit, `ts` closed over is a concrete array: its check must not
+    # trip over jnp producing tracers (it uses numpy).
+    bad = jnp.array([0.0, 0.2, 0.1])
+    with pytest.raises(ValueError, match=r"`ts` must be strictly increasing"):
+        jax.jit(lambda: jaxmr.simulate(bouc_wen(), MOTION, 0.0, bad).force)()
+
+
+def test_non_increasing_ts_under_jit():
+    bad = TS.at[6].set(TS[4])  # same shape as TS: reuses traced_force's compilation
+    with pytest.raises(eqx.EquinoxRuntimeError, match=r"`ts` must be strictly incr"):
+        traced_force(bouc_wen(), MOTION, jaxmr.Constant(0.0), bad)
+
+
+def test_nan_ts_under_jit():
+    bad = TS.at[3].set(jnp.nan)
+    with pytest.raises(eqx.EquinoxRuntimeError, match=r"`ts` contains NaN or inf"):
+        traced_force(bouc_wen(), MOTION, jaxmr.Constant(0.0), bad)
+
+
+# ---------------------------------------------------------------------------------------
+# NaN or inf in the inputs
+
+
+def test_nan_in_sampled_values_at_construction():
+    with pytest.raises(ValueError, match=r"Sampled: `values` contain NaN or inf"):
+        jaxmr.Sampled(jnp.arange(3.0), jnp.array([0.0, jnp.nan, 1.0]))
+
+
+def test_nan_in_sampled_times_at_construction():
+    # Not reported as "not increasing", which would send the user the wrong way.
+    with pytest.raises(ValueError, match=r"Sampled: `times` contain NaN or inf"):
+        jaxmr.Sampled(jnp.array([0.0, jnp.nan, 1.0]), jnp.arange(3.0))
+
+
+def test_inf_in_sampled_derivatives_at_construction():
+    with pytest.raises(ValueError, match=r"Sampled: `derivatives` contain NaN or inf"):
+        jaxmr.Sampled(jnp.arange(3.0), jnp.arange(3.0), jnp.array([1.0, jnp.inf, 1.0]))
+
+
+def test_nan_in_steps_at_construction():
+    with pytest.raises(ValueError, match=r"Steps: `times` and `values` must be finite"):
+        jaxmr.Steps(jnp.array([0.0, 0.1]), jnp.array([0.0, jnp.nan]))
+
+
+def _sampled_with_nan():
+    """A Sampled signal whose NaN slipped past construction (as traced values do)."""
+    good = jaxmr.Sampled(TS, 0.01 * jnp.sin(4 * jnp.pi * TS))
+    return eqx.tree_at(lambda s: s.values, good, good.values.at[4].set(jnp.nan))
+
+
+@pytest.mark.parametrize("argument", ["motion", "current"])
+def test_nan_in_sampled_signal_under_jit(argument):
+    good = jaxmr.Sampled(TS, 0.01 * jnp.sin(4 * jnp.pi * TS))
+    signals = {"motion": good, "current": good, argument: _sampled_with_nan()}
+    with pytest.raises(
+        eqx.EquinoxRuntimeError,
+        match=rf"`{argument}`: Sampled: its data contain NaN or inf; give finite",
+    ):
+        traced_force(bouc_wen(), signals["motion"], signals["current"], TS)
+
+
+def test_nan_constant_current():
+    with pytest.raises(
+        eqx.EquinoxRuntimeError, match=r"`current`: Constant: its data contain NaN"
+    ):
+        traced_force(bouc_wen(), MOTION, jaxmr.Constant(jnp.nan), TS)
+
+
+# ---------------------------------------------------------------------------------------
+# Wrong shapes
+
+
+@pytest.mark.parametrize(
+    "make, match",
+    [
+        (
+            lambda: jaxmr.Sampled(jnp.arange(3.0), jnp.arange(4.0)),
+            r"Sampled: `times` and `values` must be 1-D arrays of equal length, got "
+            r"shapes \(3,\) and \(4,\)",
+        ),
+        (
+            lambda: jaxmr.Sampled(jnp.arange(3.0), jnp.arange(3.0), jnp.zeros(2)),
+            r"Sampled: `derivatives` must have the shape of `times`",
+        ),
+        (
+            lambda: jaxmr.Sampled(jnp.zeros(1), jnp.zeros(1)),
+            r"Sampled: give at least two samples",
+        ),
+        (
+            lambda: jaxmr.Steps(jnp.arange(3.0), jnp.arange(4.0)),
+            r"Steps: `times` and `values` must be 1-D arrays of equal length",
+        ),
+        (
+            lambda: jaxmr.Multisine(jnp.ones(3), jnp.ones(2)),
+            r"Multisine: `amplitudes`, `frequencies` \(and `phases`\) must be 1-D "
+            r"arrays of equal length",
+        ),
+        (
+            lambda: jaxmr.Multisine(jnp.ones(2), jnp.ones(2), jnp.zeros(3)),
+            r"Multisine: .*`phases`",
+        ),
+        (
+            lambda: jaxmr.TableLaw(jnp.arange(3.0), jnp.arange(2.0)),
+            r"TableLaw: `currents` and `values` must be 1-D arrays of equal length",
+        ),
+        (
+            lambda: jaxmr.PolynomialLaw(jnp.ones((2, 2))),
+            r"PolynomialLaw: `coefficients` must be a non-empty 1-D array",
+        ),
+    ],
+    ids=[
+        "sampled",
+        "sampled-derivatives",
+        "sampled-one",
+        "steps",
+        "multisine",
+        "multisine-phases",
+        "table",
+        "polynomial",
+    ],
+)
+def test_wrong_shapes(make, match):
+    with pytest.raises((ValueError, TypeError), match=match):
+        make()
+
+
+def test_initial_state_of_wrong_shape():
+    with pytest.raises(
+        ValueError,
+        match=r"`initial_state` must have shape \(1,\) for states \('z',\), got \(2,\)",
+    ):
+        jaxmr.simulate(bouc_wen(), MOTION, 0.0, TS, initial_state=jnp.zeros(2))
+
+
+def test_array_of_currents_in_simulate_points_to_sweep():
+    with pytest.raises((TypeError, ValueError), match=names("current")):
+        jaxmr.simulate(bouc_wen(), MOTION, jnp.array([0.0, 1.0]), TS)
+
+
+def test_array_of_currents_names_sweep_without_typechecker():
+    # jaxmr's own message (the typechecker may answer first in `simulate`).
+    from jaxmr._signal import as_signal
+
+    with pytest.raises(
+        ValueError, match=r"`current` as a number must be a scalar.*`sweep`"
+    ):
+        as_signal(jnp.array([0.0, 1.0]), "current")
+
+
+# ---------------------------------------------------------------------------------------
+# Unphysical parameters, known at construction
+
+
+@pytest.mark.parametrize(
+    "make, match",
+    [
+        (lambda: bouc_wen(n=0.0), r"BoucWen: the exponent `n` must be > 0, got 0.0"),
+        (lambda: bouc_wen(n=-1.0), r"BoucWen: the exponent `n` must be > 0"),
+        (lambda: bouc_wen(gamma=-1.0), r"BoucWen: `gamma` must be >= 0"),
+        (
+            lambda: bouc_wen(beta=-2.0, gamma=1.0),
+            r"BoucWen: `beta \+ gamma` must be > 0",
+        ),
+        (lambda: bouc_wen(A=0.0), r"BoucWen: `A` must be > 0"),
+        (lambda: jaxmr.Dahl(k_x=1.0, k_w=1.0, rho=0.0), r"Dahl: `rho` must be > 0"),
+        (
+            lambda: jaxmr.LuGre(
+                sigma0=0.0, sigma1=1.0, sigma2=1.0, F_c=1.0, F_s=2.0, v_s=0.1
+            ),
+            r"LuGre: `sigma0` must be > 0",
+        ),
+        (
+            lambda: jaxmr.Bingham(f_c=-1.0, c0=1.0),
+            r"Bingham: the yield force `f_c` must be >= 0",
+        ),
+        (
+            lambda: jaxmr.FirstOrderLag(0.0),
+            r"FirstOrderLag: `rate` must be positive",
+        ),
+        (
+            lambda: jaxmr.FirstOrderLag(-5.0),
+            r"FirstOrderLag: `rate` must be positive",
+        ),
+        (
+            lambda: jaxmr.BoucWenBaberNoori(
+                k=1.0, alpha=0.5, c=1.0, A0=1.0, beta=1.0, gamma=1.0, n=1.0, zeta_s=1.0
+            ),
+            r"BoucWenBaberNoori: `zeta_s` must be in \[0, 1\)",
+        ),
+        (
+            lambda: jaxmr.NormalizedBoucWen(
+                kappa_x=0.0, kappa_w=1.0, c0=1.0, rho=0.0, sigma=0.5, n=1.0
+            ),
+            r"NormalizedBoucWen: `rho` must be > 0",
+        ),
+        (lambda: jaxmr.Sine(1.0, 0.0), r"Sine: `frequency` must be > 0 Hz"),
+        (lambda: jaxmr.Triangle(1.0, -1.0), r"Triangle: `frequency` must be > 0 Hz"),
+        (lambda: jaxmr.Chirp(1.0, 1.0, 5.0, 0.0), r"Chirp: `duration` must be > 0 s"),
+        (
+            lambda: jaxmr.Steps(jnp.array([0.0, 0.2, 0.1]), jnp.zeros(3)),
+            r"Steps: `times` must be strictly increasing",
+        ),
+        (
+            lambda: jaxmr.TableLaw(jnp.array([1.0, 0.0]), jnp.array([1.0, 2.0])),
+            r"TableLaw: `currents` must be strictly increasing",
+        ),
+        (
+            lambda: jaxmr.FixedStep(substeps=0),
+            r"FixedStep: `substeps` must be a positive integer",
+        ),
+    ],
+    ids=[
+        "bw-n0",
+        "bw-n-neg",
+        "bw-gamma",
+        "bw-beta+gamma",
+        "bw-A",
+        "dahl-rho",
+        "lugre-sigma0",
+        "bingham-fc",
+        "lag-rate0",
+        "lag-rate-neg",
+        "bwbn-zeta_s",
+        "normalized-rho",
+        "sine-frequency",
+        "triangle-frequency",
+        "chirp-duration",
+        "steps-times",
+        "table-currents",
+        "fixedstep-substeps",
+    ],
+)
+def test_unphysical_parameters_at_construction(make, match):
+    with pytest.raises(ValueError, match=match):
+        make()
+
+
+# ---------------------------------------------------------------------------------------
+# Unphysical parameters only known under jit
+
+
+@pytest.mark.parametrize("jit", [eqx.filter_jit, jax.jit], ids=["filter_jit", "jit"])
+def test_traced_parameter_checked_at_run_time(jit):
+    @jit
+    def force(n):
+        return jaxmr.simulate(bouc_wen(n=n), MOTION, 0.0, TS, integrator=FIXED).force
+
+    assert np.all(np.isfinite(force(jnp.array(2.0))))
+    # eqx.filter_jit raises EquinoxRuntimeError; under jax.jit jax wraps the same message
+    # in an error of its own (JaxRuntimeError or ValueError "INTERNAL: CpuCallback
+    # error", depending on where the check fires).
+    expected = eqx.EquinoxRuntimeError if jit is eqx.filter_jit else Exception
+    with pytest.raises(expected, match=r"BoucWen: the exponent `n` must be > 0\.") as e:
+        force(jnp.array(-1.0))
+    assert "Tracer" not in str(e.value)  # no meaningless tracer repr in the message
+
+
+def test_traced_lag_rate_checked_at_run_time():
+    good = jaxmr.Damper(bouc_wen(), jaxmr.FirstOrderLag(50.0))
+    bad = eqx.tree_at(lambda d: d.dynamics.rate, good, jnp.array(-50.0))
+    assert np.all(np.isfinite(traced_force(good, MOTION, jaxmr.Constant(0.5), TS)))
+    with pytest.raises(eqx.EquinoxRuntimeError, match=r"FirstOrderLag: `rate` must"):
+        traced_force(bad, MOTION, jaxmr.Constant(0.5), TS)
+
+
+# A model with laws: alpha tabulated on 0..1 A, n = -0.5 + 2 i (n < 0 below 0.25 A).
+# Both tests below use the same structure, so `simulate` compiles once for them.
+LAW_MODEL = bouc_wen(
+    alpha=jaxmr.TableLaw(jnp.array([0.0, 1.0]), jnp.array([100.0, 300.0])),
+    n=jaxmr.LinearLaw(-0.5, 2.0),
+)
+
+
+def test_law_resolving_to_unphysical_value_at_the_run_current():
+    run = lambda current: jaxmr.simulate(
+        LAW_MODEL, MOTION, current, TS, integrator=FIXED
+    )
+    assert np.all(np.isfinite(run(0.5).force))
+    with pytest.raises(
+        eqx.EquinoxRuntimeError,
+        match=r"BoucWen \(its current laws evaluated at the current at ts\[0\]\): the "
+        r"exponent `n` must be > 0",
+    ):
+        run(0.1)
+
+
+def test_current_outside_table_law():
+    with pytest.raises(
+        eqx.EquinoxRuntimeError,
+        match=r"`current` leaves the current range of a TableLaw.*extend the table",
+    ):
+        jaxmr.simulate(LAW_MODEL, MOTION, 2.0, TS, integrator=FIXED)
+
+
+# ---------------------------------------------------------------------------------------
+# Wrong types
+
+
+@pytest.mark.parametrize(
+    "argument, call",
+    [
+        ("device", lambda: jaxmr.simulate("BoucWen", MOTION, 0.0, TS)),
+        ("motion", lambda: jaxmr.simulate(bouc_wen(), 0.01, 0.0, TS)),
+        ("current", lambda: jaxmr.simulate(bouc_wen(), MOTION, "1 A", TS)),
+        (
+            "integrator",
+            lambda: jaxmr.simulate(bouc_wen(), MOTION, 0.0, TS, integrator="rk4"),
+        ),
+    ],
+    ids=["device", "motion", "current", "integrator"],
+)
+def test_wrong_type(argument, call):
+    with pytest.raises(TypeError, match=names(argument)):
+        call()
+
+
+@pytest.mark.parametrize(
+    "argument, arguments",
+    [
+        ("device", ("BoucWen", MOTION, 0.0, None)),
+        ("motion", (bouc_wen(), 0.01, 0.0, None)),
+        ("current", (bouc_wen(), MOTION, "1 A", None)),
+        ("integrator", (bouc_wen(), MOTION, 0.0, "rk4")),
+    ],
+    ids=["device", "motion", "current", "integrator"],
+)
+def test_wrong_type_jaxmr_message(argument, arguments):
+    # jaxmr's own check (the typechecker answers first in the public functions under
+    # this test suite; users without it see these messages).
+    from jaxmr._simulate import _prepare
+
+    with pytest.raises(TypeError, match=rf"`{argument}` must be .*got (str|float)"):
+        _prepare(*arguments)
+
+
+def test_damper_wrong_types():
+    with pytest.raises(TypeError, match=names("hysteresis")):
+        jaxmr.Damper("BoucWen")
+    with pytest.raises(TypeError, match=names("dynamics")):
+        jaxmr.Damper(bouc_wen(), 190.0)
+
+
+# ---------------------------------------------------------------------------------------
+# Solver failure
+
+
+TS_2S = jnp.linspace(0.0, 2.0, 5)
+
+
+def test_max_steps_reached_is_a_result_code_or_an_error():
+    integrator = jaxmr.Adaptive(max_steps=10)  # Dopri8 at rtol 1e-8 needs far more
+    sol = jaxmr.simulate(
+        bouc_wen(), MOTION, 0.0, TS_2S, integrator=integrator, throw=False
+    )
+    assert sol.result == jaxmr.RESULTS.max_steps_reached
+    assert int(sol.num_steps) == 10
+    with pytest.raises(
+        eqx.EquinoxRuntimeError, match=r"maximum number of solver steps"
+    ):
+        jaxmr.simulate(bouc_wen(), MOTION, 0.0, TS_2S, integrator=integrator)
+
+
+# gamma = 50 + 1e6 i [1/m²]: at 0 A one RK4 step of 50 ms is stable (h |df/dz| =
+# h 2 gamma |v| |z| ~ 1e-2), at 1 A z saturates at ~1e-3 m, h |df/dz| ~ 13 (RK4 is
+# stable below 2.8), and each overshoot squares |z|: inf within three steps.
+STIFF_AT_1A = bouc_wen(gamma=jaxmr.LinearLaw(50.0, 1e6))
+
+
+def test_fixed_step_divergence_is_a_result_code_or_an_error():
+    sol = jaxmr.simulate(STIFF_AT_1A, MOTION, 1.0, TS, integrator=FIXED, throw=False)
+    assert sol.result in (jaxmr.RESULTS.nonfinite, jaxmr.RESULTS.nonfinite_force)
+    assert not np.all(np.isfinite(sol.force))
+    with pytest.raises(eqx.EquinoxRuntimeError, match=r"[Nn]on-?finite"):
+        jaxmr.simulate(STIFF_AT_1A, MOTION, 1.0, TS, integrator=FIXED)
+
+
+def test_sweep_returns_a_result_code_per_run():
+    sol = jaxmr.sweep(
+        STIFF_AT_1A, MOTION, jnp.array([0.0, 1.0]), TS, integrator=FIXED, throw=False
+    )
+    assert sol.force.shape == (2, TS.shape[0])
+    ok = np.asarray(sol.result == jaxmr.RESULTS.successful)
+    nonfinite = np.asarray(sol.result == jaxmr.RESULTS.nonfinite)
+    np.testing.assert_array_equal(ok, [True, False])
+    np.testing.assert_array_equal(nonfinite, [False, True])
+    assert np.all(np.isfinite(sol.force[0]))  # the good run is untouched by the bad one
+    with pytest.raises(eqx.EquinoxRuntimeError, match=r"[Nn]on-?finite"):
+        jaxmr.sweep(STIFF_AT_1A, MOTION, jnp.array([0.0, 1.0]), TS, integrator=FIXED)
