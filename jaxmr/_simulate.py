@@ -10,7 +10,7 @@ import numpy as np
 from jax.sharding import Mesh, PartitionSpec
 
 from ._current_law import is_law
-from ._custom_types import ArrayLike, Float
+from ._custom_types import ArrayLike, Float, ScalarLike
 from ._damper import Damper, as_damper
 from ._hysteresis import AbstractHysteresis
 from ._integrate import AbstractIntegrator, Adaptive, FixedStep
@@ -183,7 +183,7 @@ def _prepare(device, motion, current, integrator):
 def simulate(
     device: Damper | AbstractHysteresis,
     motion: AbstractSignal,
-    current: AbstractSignal | float = 0.0,
+    current: AbstractSignal | ScalarLike = 0.0,
     ts: Float[ArrayLike, " times"] | None = None,
     *,
     integrator: AbstractIntegrator | None = None,
@@ -345,7 +345,7 @@ def _broadcast(x, n):
 def sweep(
     device: Damper | AbstractHysteresis | Sequence[Damper | AbstractHysteresis],
     motion: AbstractSignal | Sequence[AbstractSignal],
-    current: AbstractSignal | float | Sequence | Float[ArrayLike, " currents"],
+    current: AbstractSignal | ScalarLike | Sequence | Float[ArrayLike, " currents"],
     ts: Float[ArrayLike, " times"],
     *,
     grid: bool = True,

@@ -1,0 +1,39 @@
+"""Every example notebook executes without error.
+
+The notebooks run in a separate kernel process (so this file's float64 and strict
+promotion settings do not reach them: each notebook enables float64 itself), against
+this checkout of jaxmr."""
+
+import os
+from pathlib import Path
+
+import nbformat
+import pytest
+from nbclient import NotebookClient
+
+ROOT = Path(__file__).resolve().parents[1]
+NOTEBOOKS = sorted((ROOT / "notebooks").glob("*.ipynb"))
+
+
+def test_notebooks_found():
+    assert NOTEBOOKS, f"no notebooks found in {ROOT / 'notebooks'}"
+
+
+@pytest.mark.parametrize("path", NOTEBOOKS, ids=[p.name for p in NOTEBOOKS])
+def test_notebook_executes(path, monkeypatch):
+    # The kernel imports this checkout's jaxmr whether or not it is installed.
+    monkeypatch.setenv(
+        "PYTHONPATH",
+        os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")])),
+    )
+    notebook = nbformat.read(path, as_version=4)
+    # "python3" is ipykernel's built-in kernel: jupyter_client resolves it to the
+    # interpreter running this test (`sys.executable`) even where no kernelspec was
+    # installed, e.g. in a virtual environment that is not activated.
+    client = NotebookClient(
+        notebook,
+        kernel_name="python3",
+        timeout=600,
+        resources={"metadata": {"path": str(path.parent)}},
+    )
+    client.execute()  # raises CellExecutionError on the first failing cell
