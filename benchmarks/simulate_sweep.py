@@ -29,6 +29,7 @@ import math
 import os
 import platform
 import statistics
+import subprocess
 import sys
 import time
 from pathlib import Path
@@ -149,22 +150,28 @@ def wall(fn, *args):
     return out, time.perf_counter() - t0
 
 
-def timed_runs(fn, repeats):
-    """Wall times of `repeats` calls (after any compile): min, median and all; and the
-    process CPU time of the fastest call (all threads: robust to other load on a shared
-    machine, where wall times are not)."""
-    times, cpu = [], []
+def interleaved(fns, repeats):
+    """Time each of `fns` (already compiled) `repeats` times, in rounds that call each
+    once, so that load from other processes on a shared machine hits them alike. Per
+    function: the min wall time (the figure used), median, all, and the process CPU time
+    (all threads) of the fastest call."""
+    walls = {k: [] for k in fns}
+    cpus = {k: [] for k in fns}
     for _ in range(repeats):
-        c0 = time.process_time()
-        times.append(wall(fn)[1])
-        cpu.append(time.process_time() - c0)
-    best = int(np.argmin(times))
-    return {
-        "min_s": times[best],
-        "median_s": statistics.median(times),
-        "all_s": times,
-        "cpu_s": cpu[best],
-    }
+        for k, fn in fns.items():
+            c0 = time.process_time()
+            walls[k].append(wall(fn)[1])
+            cpus[k].append(time.process_time() - c0)
+    out = {}
+    for k, times in walls.items():
+        best = int(np.argmin(times))
+        out[k] = {
+            "min_s": times[best],
+            "median_s": statistics.median(times),
+            "all_s": times,
+            "cpu_s": cpus[k][best],
+        }
+    return out
 
 
 def rel_error(torque, reference):
@@ -172,6 +179,24 @@ def rel_error(torque, reference):
     torque, reference = np.asarray(torque), np.asarray(reference)
     peak = np.abs(reference).max(axis=-1)
     return float((np.abs(torque - reference).max(axis=-1) / peak).max())
+
+
+def git_state():
+    """The checkout measured: commit and the files changed since (others edit too)."""
+    root = Path(__file__).resolve().parents[1]
+    try:
+        head = subprocess.run(
+            ["git", "rev-parse", "HEAD"], cwd=root, capture_output=True, text=True
+        ).stdout.strip()
+        dirty = subprocess.run(
+            ["git", "status", "--porcelain", "jaxmr"],
+            cwd=root,
+            capture_output=True,
+            text=True,
+        ).stdout.split("\n")
+    except OSError:
+        return None
+    return {"commit": head, "changed": [line.strip() for line in dirty if line]}
 
 
 def device_description():
@@ -344,30 +369,62 @@ def main():
         substeps = args.substeps
     dt_step = float(ts[1] - ts[0]) / substeps
 
-    # --- jaxmr fast mode: the full sweep -------------------------------------------------
+    # --- scipy: choose the setting of equal accuracy (baseline A) ------------------------
+    # The corners of the grid: lowest/highest amplitude x frequency x current.
+    corner_m = [0, n_freq - 1, n_mot - n_freq, n_mot - 1]
+    corner_c = [0, len(ref_currents) - 1]
+    scipy_runs = [(m, c) for m in corner_m for c in corner_c]
+    if args.quick:
+        scipy_runs = [(n_mot - 1, len(ref_currents) - 1), (0, 0)]
+
+    def scipy_loop(method, rtol):
+        errs, nfev = [], 0
+        for m, c in scipy_runs:
+            (a, f), i = motion_params[m], ref_currents[c]
+            torque, n = scipy_torque(a, f, i, ts_np, method, rtol)
+            nfev += n
+            errs.append(rel_error(torque, t_ref[m, c]))
+        return max(errs), nfev
+
+    scipy_tries = []
+    for method, rtol in SCIPY_CANDIDATES:
+        (err, nfev), scipy_s = wall(scipy_loop, method, rtol)
+        scipy_tries.append(
+            {
+                "method": method,
+                "rtol": rtol,
+                "atol": rtol * 1e-2,
+                "max_torque_error_rel": err,
+                "wall_s": scipy_s,
+                "nfev": nfev,
+            }
+        )
+        print(f"scipy {method} rtol={rtol:g}: error {err:.2e} ({scipy_s:.1f} s)")
+        if err <= PEAK_ERROR_TARGET:
+            break
+    else:
+        raise SystemExit("no scipy setting met the accuracy target")
+    scipy_best = scipy_tries[-1]
+
+    # --- compile: jaxmr fast mode and the scan kernel (baseline B) -----------------------
     cur_all = jnp.asarray(currents)
-    sol, first_s = wall(lambda: fixed(substeps, cur_all))
-    run = timed_runs(lambda: fixed(substeps, cur_all), args.repeats)
-    run_nothrow = timed_runs(
-        lambda: jaxmr.sweep(
+
+    def jaxmr_fast(throw=True):
+        return jaxmr.sweep(
             brake,
             motions,
             cur_all,
             ts,
             integrator=jaxmr.FixedStep(substeps=substeps),
-            throw=False,
-        ),
-        min(2, args.repeats),
-    )
-    jaxmr_force = np.asarray(sol.force)  # (motions, currents, times)
-    err_jaxmr = rel_error(jaxmr_force[:, ref_cur_index], t_ref)
-    throughput = sim_seconds / run["min_s"]
-    print(
-        f"jaxmr FixedStep({substeps}): first call {first_s:.2f} s, run "
-        f"{run['min_s']:.2f} s -> {throughput:.0f} sim s/s"
-    )
+            throw=throw,
+        )
 
-    # --- baseline B: lax.scan RK4 kernel -------------------------------------------------
+    sol, first_s = wall(jaxmr_fast)
+    jaxmr_force = np.asarray(sol.force)  # (motions, currents, times)
+    del sol
+    err_jaxmr = rel_error(jaxmr_force[:, ref_cur_index], t_ref)
+    _, first_nothrow_s = wall(jaxmr_fast, False)
+
     kernel = make_kernel(ts, substeps)
     k_args = [jnp.asarray(x) for x in (run_a, run_f, run_i)]
     if jax.device_count() > 1 and args.runs % jax.device_count() == 0:
@@ -379,12 +436,28 @@ def main():
     kernel_compiled = kernel.lower(*k_args).compile()
     kernel_compile_s = time.perf_counter() - t0
     kernel_torque, kernel_first_s = wall(kernel_compiled, *k_args)
-    kernel_run = timed_runs(lambda: kernel_compiled(*k_args), args.repeats)
     kernel_torque = np.asarray(kernel_torque).reshape(n_mot, n_cur, -1)
     err_kernel = rel_error(kernel_torque[:, ref_cur_index], t_ref)
     kernel_vs_jaxmr = float(np.abs(kernel_torque - jaxmr_force).max())
+
+    # --- timing: interleaved rounds, so that load from elsewhere hits all alike ----------
+    timing = interleaved(
+        {
+            "jaxmr": jaxmr_fast,
+            "jaxmr_throw_false": lambda: jaxmr_fast(False),
+            "kernel": lambda: kernel_compiled(*k_args),
+            "scipy": lambda: scipy_loop(scipy_best["method"], scipy_best["rtol"]),
+        },
+        args.repeats,
+    )
+    run, kernel_run = timing["jaxmr"], timing["kernel"]
+    throughput = sim_seconds / run["min_s"]
+    scipy_throughput = len(scipy_runs) * duration / timing["scipy"]["min_s"]
     print(
-        f"scan kernel: compile {kernel_compile_s:.2f} s, run {kernel_run['min_s']:.2f} s"
+        f"jaxmr FixedStep({substeps}): first call {first_s:.2f} s, run "
+        f"{run['min_s']:.2f} s -> {throughput:.0f} sim s/s; scan kernel: compile "
+        f"{kernel_compile_s:.2f} s, run {kernel_run['min_s']:.2f} s; scipy "
+        f"{scipy_throughput:.1f} sim s/s"
     )
 
     # --- adaptive default: vmap vs map, and fixed-step map, on the reference subset -------
@@ -397,9 +470,8 @@ def main():
         ("FixedStep", "vmap", None),
         ("FixedStep", "map", 64),
     ]
-    batching_results = []
-    for config in filter(None, configs):
-        name, batching, batch_size = config
+    calls, entries = {}, {}
+    for name, batching, batch_size in configs:
         integrator = (
             jaxmr.Adaptive() if name == "Adaptive" else jaxmr.FixedStep(substeps)
         )
@@ -415,73 +487,36 @@ def main():
                 batch_size=batch_size,
             )
 
+        key = f"{name}_{batching}" + (f"_bs{batch_size}" if batching == "map" else "")
         out, first = wall(call)
-        times = timed_runs(call, args.repeats)
-        entry = {
+        calls[key] = call
+        entries[key] = {
             "integrator": name if name == "Adaptive" else f"FixedStep({substeps})",
             "batching": batching,
             "batch_size": batch_size,
             "runs": n_sub,
             "first_call_s": first,
-            "run_s": times["min_s"],
-            "run_s_all": times["all_s"],
-            "run_cpu_s": times["cpu_s"],
-            "throughput_sim_s_per_s": n_sub * duration / times["min_s"],
             "max_torque_error_rel": rel_error(out.force, t_ref),
             "mean_num_steps": float(np.mean(np.asarray(out.num_steps))),
         }
-        batching_results.append(entry)
-        print(
-            f"{entry['integrator']:>12} {batching:>4} batch_size={batch_size}: "
-            f"{entry['throughput_sim_s_per_s']:.0f} sim s/s"
-        )
-
-    # --- baseline A: scipy solve_ivp loop of equal accuracy ------------------------------
-    # The corners of the grid: lowest/highest amplitude x frequency x current.
-    corner_m = [0, n_freq - 1, n_mot - n_freq, n_mot - 1]
-    corner_c = [0, len(ref_currents) - 1]
-    scipy_runs = [(m, c) for m in corner_m for c in corner_c]
-    if args.quick:
-        scipy_runs = [(n_mot - 1, len(ref_currents) - 1), (0, 0)]
-    scipy_tries = []
-    for method, rtol in SCIPY_CANDIDATES:
-        t0, c0 = time.perf_counter(), time.process_time()
-        errs, nfev = [], 0
-        for m, c in scipy_runs:
-            (a, f), i = motion_params[m], ref_currents[c]
-            torque, n = scipy_torque(a, f, i, ts_np, method, rtol)
-            nfev += n
-            errs.append(rel_error(torque, t_ref[m, c]))
-        scipy_s = time.perf_counter() - t0
-        scipy_cpu = time.process_time() - c0
-        scipy_tries.append(
-            {
-                "method": method,
-                "rtol": rtol,
-                "atol": rtol * 1e-2,
-                "max_torque_error_rel": max(errs),
-                "wall_s": scipy_s,
-                "cpu_s": scipy_cpu,
-                "nfev": nfev,
-                "throughput_sim_s_per_s": len(scipy_runs) * duration / scipy_s,
-            }
+    for key, times in interleaved(calls, args.repeats).items():
+        entry = entries[key]
+        entry.update(
+            run_s=times["min_s"],
+            run_s_all=times["all_s"],
+            run_cpu_s=times["cpu_s"],
+            throughput_sim_s_per_s=n_sub * duration / times["min_s"],
         )
         print(
-            f"scipy {method} rtol={rtol:g}: error {max(errs):.2e}, "
-            f"{scipy_tries[-1]['throughput_sim_s_per_s']:.1f} sim s/s"
+            f"{entry['integrator']:>12} {entry['batching']:>4} batch_size="
+            f"{entry['batch_size']}: {entry['throughput_sim_s_per_s']:.0f} sim s/s"
         )
-        if max(errs) <= PEAK_ERROR_TARGET:
-            break
-    else:
-        raise SystemExit("no scipy setting met the accuracy target")
-    scipy_best = scipy_tries[-1]
-    scipy_throughput = scipy_best["throughput_sim_s_per_s"]
+    batching_results = list(entries.values())
 
     # --- results -------------------------------------------------------------------------
     adaptive = {
-        f"{e['batching']}"
-        + (f"_bs{e['batch_size']}" if e["batching"] == "map" else ""): e
-        for e in batching_results
+        k.removeprefix("Adaptive_"): e
+        for k, e in entries.items()
         if e["integrator"] == "Adaptive"
     }
     results = {
@@ -517,12 +552,22 @@ def main():
         "step_s": dt_step,
         "throughput_sim_s_per_s": throughput,
         "speedup_vs_scipy": throughput / scipy_throughput,
+        "scan_kernel_speedup_vs_scipy": sim_seconds
+        / kernel_run["min_s"]
+        / scipy_throughput,
+        "speedup_vs_scipy_cpu_time": (
+            timing["scipy"]["cpu_s"] / (len(scipy_runs) * duration)
+        )
+        / (run["cpu_s"] / sim_seconds),
         "time_ratio_vs_scan_kernel": run["min_s"] / kernel_run["min_s"],
         "cpu_time_ratio_vs_scan_kernel": run["cpu_s"] / kernel_run["cpu_s"],
         "max_torque_error_rel": {
             "jaxmr_fixedstep": err_jaxmr,
             "scipy": scipy_best["max_torque_error_rel"],
             "scan_kernel": err_kernel,
+            "jaxmr_adaptive_default_subset": entries["Adaptive_map_bsNone"][
+                "max_torque_error_rel"
+            ],
             "scan_kernel_vs_jaxmr_abs_Nm": kernel_vs_jaxmr,
         },
         "jaxmr_fixedstep": {
@@ -532,7 +577,7 @@ def main():
             "run_s_median": run["median_s"],
             "run_s_all": run["all_s"],
             "run_cpu_s": run["cpu_s"],
-            "run_s_throw_false": run_nothrow["min_s"],
+            "run_s_throw_false": timing["jaxmr_throw_false"]["min_s"],
         },
         "scan_kernel": {
             "compile_s": kernel_compile_s,
@@ -548,8 +593,9 @@ def main():
             "rtol": scipy_best["rtol"],
             "atol": scipy_best["atol"],
             "runs_timed": len(scipy_runs),
-            "wall_s": scipy_best["wall_s"],
-            "cpu_s": scipy_best["cpu_s"],
+            "wall_s": timing["scipy"]["min_s"],
+            "wall_s_all": timing["scipy"]["all_s"],
+            "cpu_s": timing["scipy"]["cpu_s"],
             "throughput_sim_s_per_s": scipy_throughput,
             "extrapolated_wall_s_for_all_runs": sim_seconds / scipy_throughput,
             "tried": scipy_tries,
@@ -562,7 +608,9 @@ def main():
         },
         "batching_details": batching_results,
         "timing": f"run times are the min of {args.repeats} calls after the first "
-        "(compile) call, each with block_until_ready",
+        "(compile) call, each with block_until_ready, timed in interleaved rounds "
+        "(jaxmr, jaxmr throw=False, kernel, scipy; then the batching configurations); "
+        "compile_s = first call - median run",
         "versions": {
             "jax": jax.__version__,
             "jaxlib": __import__("jaxlib").__version__,
@@ -573,6 +621,7 @@ def main():
             "jaxmr": jaxmr.__version__,
         },
         "device": device_description(),
+        "git": git_state(),
         "host_devices": args.host_devices,
         "loadavg_start": load_start,
         "loadavg_end": os.getloadavg(),
@@ -604,8 +653,8 @@ def main():
             f"scipy {scipy_best['method']} rtol={scipy_best['rtol']:g} "
             f"({len(scipy_runs)} runs)",
             0.0,
-            scipy_best["wall_s"],
-            scipy_best["cpu_s"],
+            timing["scipy"]["min_s"],
+            timing["scipy"]["cpu_s"],
             scipy_throughput,
             scipy_best["max_torque_error_rel"],
         ),
@@ -629,7 +678,11 @@ def main():
     for name, comp, r, cpu, thr, err in rows:
         print(f"{name:<42}{comp:>10.2f}{r:>8.2f}{cpu:>8.2f}{thr:>9.0f}{err:>10.1e}")
     print()
-    print(f"speedup_vs_scipy          {results['speedup_vs_scipy']:.0f}  (goal >= 100)")
+    print(
+        f"speedup_vs_scipy          {results['speedup_vs_scipy']:.0f}  (goal >= 100; "
+        f"scan kernel {results['scan_kernel_speedup_vs_scipy']:.0f}; in CPU time "
+        f"{results['speedup_vs_scipy_cpu_time']:.0f})"
+    )
     print(
         f"time_ratio_vs_scan_kernel {results['time_ratio_vs_scan_kernel']:.2f} "
         f"(goal <= 2; CPU time ratio {results['cpu_time_ratio_vs_scan_kernel']:.2f})"

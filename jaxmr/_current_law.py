@@ -16,6 +16,17 @@ from ._custom_types import Array, Float, Scalar, ScalarLike
 from ._misc import as_float_array, check_concrete
 
 
+def _plain(x):
+    """A parameter's array, looking through a fitting constraint wrapper."""
+    return x.value() if isinstance(x, eqx.Module) else x
+
+
+def as_parameter(x):
+    """Converter for model parameters: keep a current law or a fitting constraint
+    (`Positive`, `Bounded`, `Fixed`: any equinox Module), make anything else an array."""
+    return x if isinstance(x, eqx.Module) else as_float_array(x)
+
+
 class AbstractCurrentLaw(eqx.Module):
     """A parameter as a function of the effective current $i$ [A] (or voltage [V])."""
 
@@ -32,7 +43,7 @@ class ConstantLaw(AbstractCurrentLaw):
     r"""$p(i) = p_0$: a parameter that does not depend on current (useful when fitting
     switches a parameter between shared and current-dependent)."""
 
-    value: Float[Array, ""] = eqx.field(converter=as_float_array)
+    value: Float[Array, ""] = eqx.field(converter=as_parameter)
 
     def __call__(self, current: Scalar) -> Scalar:
         return self.value + 0.0 * current
@@ -47,8 +58,8 @@ class LinearLaw(AbstractCurrentLaw):
     - `b`: slope, in the parameter's unit per A (or per V).
     """
 
-    a: Float[Array, ""] = eqx.field(converter=as_float_array)
-    b: Float[Array, ""] = eqx.field(converter=as_float_array)
+    a: Float[Array, ""] = eqx.field(converter=as_parameter)
+    b: Float[Array, ""] = eqx.field(converter=as_parameter)
 
     def __call__(self, current: Scalar) -> Scalar:
         return self.a + self.b * current
@@ -63,13 +74,14 @@ class PolynomialLaw(AbstractCurrentLaw):
       damper's $\alpha(i) = p_6 + p_5 i + p_4 i^2$ is `PolynomialLaw([p6, p5, p4])`.
     """
 
-    coefficients: Float[Array, " degree_plus_one"] = eqx.field(converter=as_float_array)
+    coefficients: Float[Array, " degree_plus_one"] = eqx.field(converter=as_parameter)
 
     def __check_init__(self):
-        if self.coefficients.ndim != 1 or self.coefficients.shape[0] < 1:
+        coefficients = _plain(self.coefficients)
+        if coefficients.ndim != 1 or coefficients.shape[0] < 1:
             raise ValueError(
                 "PolynomialLaw: `coefficients` must be a non-empty 1-D array "
-                f"(c0, c1, ...), got shape {self.coefficients.shape}."
+                f"(c0, c1, ...), got shape {coefficients.shape}."
             )
 
     def __call__(self, current: Scalar) -> Scalar:
@@ -86,8 +98,8 @@ class ExponentialLaw(AbstractCurrentLaw):
     - `b`: rate, in 1/A (or 1/V).
     """
 
-    a: Float[Array, ""] = eqx.field(converter=as_float_array)
-    b: Float[Array, ""] = eqx.field(converter=as_float_array)
+    a: Float[Array, ""] = eqx.field(converter=as_parameter)
+    b: Float[Array, ""] = eqx.field(converter=as_parameter)
 
     def __call__(self, current: Scalar) -> Scalar:
         return self.a * jnp.exp(self.b * current)
@@ -107,21 +119,22 @@ class TableLaw(AbstractCurrentLaw):
     """
 
     currents: Float[Array, " table"] = eqx.field(converter=as_float_array)
-    values: Float[Array, " table"] = eqx.field(converter=as_float_array)
+    values: Float[Array, " table"] = eqx.field(converter=as_parameter)
 
     def __check_init__(self):
-        if self.currents.ndim != 1 or self.currents.shape != self.values.shape:
+        values = _plain(self.values)
+        if self.currents.ndim != 1 or self.currents.shape != values.shape:
             raise ValueError(
                 "TableLaw: `currents` and `values` must be 1-D arrays of equal length, "
-                f"got shapes {self.currents.shape} and {self.values.shape}."
+                f"got shapes {self.currents.shape} and {values.shape}."
             )
         if self.currents.shape[0] < 1:
             raise ValueError("TableLaw: give at least one (current, value) pair.")
         check_concrete(
-            jnp.all(jnp.isfinite(self.currents)) & jnp.all(jnp.isfinite(self.values)),
+            jnp.all(jnp.isfinite(self.currents)) & jnp.all(jnp.isfinite(values)),
             "TableLaw: `currents` and `values` must be finite (no NaN or inf).",
             self.currents,
-            self.values,
+            values,
         )
         check_concrete(
             jnp.all(jnp.diff(self.currents) > 0),
@@ -151,8 +164,3 @@ def law_ranges(tree) -> list[tuple[Array, Array]]:
     """The validity ranges of all the laws in `tree` that have one."""
     laws = [p for p in jax.tree.leaves(tree, is_leaf=is_law) if is_law(p)]
     return [r for r in (law.range() for law in laws) if r is not None]
-
-
-def as_parameter(x):
-    """Converter for model parameters: keep a current law, make anything else an array."""
-    return x if is_law(x) else as_float_array(x)

@@ -104,9 +104,16 @@ def _field(t, y, args):
     return damper.rates(y, motion(t), motion.derivative(t), current(t))
 
 
-def _run(damper, motion, current, ts, integrator, initial_state) -> Solution:
-    """One simulation, traced (no jit of its own: it is vmapped and mapped)."""
-    ts = _runtime_checks(damper, motion, current, ts)
+def _run(
+    damper, motion, current, ts, integrator, initial_state, checks: bool = True
+) -> Solution:
+    """One simulation, traced (no jit of its own: it is vmapped and mapped).
+
+    `checks=False` skips the runtime input checks: `fit` validates its data once, and
+    under vmap every `eqx.error_if` becomes a host callback on each evaluation.
+    """
+    if checks:
+        ts = _runtime_checks(damper, motion, current, ts)
     x = jax.vmap(motion)(ts)
     v = jax.vmap(motion.derivative)(ts)
     i = jax.vmap(current)(ts)
@@ -277,13 +284,33 @@ def _index(batched, size, indices):
 
 
 def _auto_batching(integrator) -> str:
-    # Measured (benchmarks/simulate_sweep.py): fixed-step scans vectorise well; adaptive
-    # solves under vmap run every member as long as the slowest, so they are mapped in
-    # chunks instead.
+    # Measured on a 2-core CPU, one XLA device (benchmarks/simulate_sweep.py and the same
+    # runs at other sizes: SAS brake, 10 s at 1 kHz, 2026-11-21), simulated s per wall s:
+    # - FixedStep(3), 1024 runs: vmap 1580-3240 over 3 calls, map with batch_size 64:
+    #   1950, 256: 2220, None (one run at a time): 1470; 128 runs: vmap 2530, map 64
+    #   2270. Scans vectorise.
+    # - Adaptive(), 128 runs: vmap 590, map None 965, map 64 680, map 8 260; 512 runs:
+    #   vmap 410, map None 850, map 64 660. A vmapped adaptive solve runs every member as
+    #   long as the slowest, and each step of a vmapped while loop costs more (even
+    #   batch_size=1 took 2-3x the CPU time of None), so adaptive runs are mapped one at
+    #   a time (the default batch_size=None). GPUs: not measured.
     return "vmap" if isinstance(integrator, FixedStep) else "map"
 
 
 @eqx.filter_jit
+def _sweep(
+    damper, motion, current, axes, ts, integrator, batching, batch_size, shape, throw
+):
+    # The throw and the reshape to the sweep's axes happen inside the same compiled call:
+    # done outside, each copied the whole solution (~15 % of a large sweep's time).
+    sol = _sweep_flat(
+        damper, motion, current, axes, ts, integrator, batching, batch_size
+    )
+    if throw:
+        sol = sol.result.error_if(sol, jnp.any(sol.result != RESULTS.successful))
+    return jax.tree.map(lambda a: a.reshape(shape + a.shape[1:]), sol)
+
+
 def _sweep_flat(damper, motion, current, axes, ts, integrator, batching, batch_size):
     def one(d, m, c):
         return _run(d, m, c, ts, integrator, None)
@@ -351,7 +378,7 @@ def sweep(
     grid: bool = True,
     integrator: AbstractIntegrator | None = None,
     batching: Literal["auto", "vmap", "map"] = "auto",
-    batch_size: int | None = 64,
+    batch_size: int | None = None,  # None: one run at a time, see _auto_batching
     throw: bool = True,
 ) -> Solution:
     r"""Simulate many runs in one call: over currents, motions and parameter sets.
@@ -364,8 +391,9 @@ def sweep(
     give one leading axis.
 
     Runs are batched the way that measured fastest on CPU: fixed-step integration under
-    `vmap`; adaptive integration with `lax.map` over chunks of `batch_size` vmapped runs
-    (an adaptive batch under vmap runs as long as its slowest member). With several
+    `vmap`; adaptive integration with `lax.map`, one run at a time by default (a
+    vmapped adaptive batch runs as long as its slowest member, and measured 1.6–2x
+    slower than mapping on CPU). With several
     local devices (GPUs, or host devices from
     `XLA_FLAGS=--xla_force_host_platform_device_count=N`) the batch is split across them
     with `jax.shard_map` when its size divides evenly.
@@ -374,7 +402,8 @@ def sweep(
 
     - `grid`: outer product (True) or zip (False) of the sequences.
     - `batching`: `"auto"`, `"vmap"` or `"map"`.
-    - `batch_size`: runs vmapped together inside `lax.map` (ignored by `"vmap"`).
+    - `batch_size`: runs vmapped together inside each `lax.map` step (default `None`:
+      one at a time; ignored by `"vmap"`).
 
     **Returns:** a `Solution` whose arrays have the sweep's leading axes.
     """
@@ -430,12 +459,6 @@ def sweep(
         module, axis = _index(module, size, index.get(k))
         args.append(module)
         axes.append(axis)
-    flat = _sweep_flat(*args, tuple(axes), ts, integrator, batching, batch_size)
-    if throw:
-        flat = _throw_batch(flat)
-    return jax.tree.map(lambda a: a.reshape(shape + a.shape[1:]), flat)
-
-
-@eqx.filter_jit
-def _throw_batch(sol):
-    return sol.result.error_if(sol, jnp.any(sol.result != RESULTS.successful))
+    return _sweep(
+        *args, tuple(axes), ts, integrator, batching, batch_size, shape, throw
+    )

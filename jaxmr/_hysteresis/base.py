@@ -1,13 +1,14 @@
 """The abstract hysteresis law every damper model implements."""
 
 import abc
+import dataclasses
 from typing import ClassVar
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 
-from .._current_law import is_law, resolve
+from .._current_law import resolve
 from .._custom_types import Array, Bool, Scalar, ScalarLike, State
 from .._misc import check_concrete, is_concrete
 
@@ -64,8 +65,9 @@ class AbstractHysteresis(eqx.Module):
         return []
 
     def __check_init__(self):
-        # Only parameters given as plain numbers can be checked before a current is known.
-        if any(is_law(p) for p in jax.tree.leaves(self, is_leaf=is_law)):
+        # Only parameters given as plain numbers can be checked before a current is known
+        # (laws) or before a fit resolves them (constraint wrappers).
+        if any(isinstance(p, eqx.Module) for p in _parameters(self)):
             return
         if not is_concrete(self):
             return
@@ -73,3 +75,7 @@ class AbstractHysteresis(eqx.Module):
             constraints = self.constraints()
         for ok, message in constraints:
             check_concrete(ok, f"{type(self).__name__}: {message}", self)
+
+
+def _parameters(model) -> list:
+    return [getattr(model, f.name) for f in dataclasses.fields(model)]

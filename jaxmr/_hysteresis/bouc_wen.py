@@ -7,7 +7,7 @@ import jax.numpy as jnp
 
 from .._current_law import AbstractCurrentLaw, as_parameter, is_law
 from .._custom_types import Array, Float, Scalar, State
-from .._misc import abs_pow, signed_pow
+from .._misc import abs_pow
 from .base import AbstractHysteresis
 
 Parameter = Float[Array, ""] | AbstractCurrentLaw
@@ -15,7 +15,9 @@ Parameter = Float[Array, ""] | AbstractCurrentLaw
 
 def bouc_wen_rate(z, v, A, beta, gamma, n):
     r"""$\dot z = A v - \gamma |v| z |z|^{n-1} - \beta v |z|^n$ (Spencer's convention)."""
-    return A * v - gamma * jnp.abs(v) * signed_pow(z, n) - beta * v * abs_pow(z, n)
+    # One power for both terms (z|z|^(n-1) = sgn(z)|z|^n): the power dominates the cost.
+    power = abs_pow(z, n)
+    return A * v - (gamma * jnp.abs(v) * jnp.sign(z) + beta * v) * power
 
 
 class BoucWen(AbstractHysteresis):
@@ -156,10 +158,9 @@ class NormalizedBoucWen(AbstractHysteresis):
 
     def rates(self, state: State, x: Scalar, v: Scalar) -> State:
         w = state[0]
+        power = abs_pow(w, self.n)
         rate = self.rho * (
-            v
-            - self.sigma * jnp.abs(v) * signed_pow(w, self.n)
-            + (self.sigma - 1) * v * abs_pow(w, self.n)
+            v - (self.sigma * jnp.abs(v) * jnp.sign(w) + (1 - self.sigma) * v) * power
         )
         return rate[None]
 

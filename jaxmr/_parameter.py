@@ -1,0 +1,105 @@
+"""Constraints for identification: wrappers that mark a parameter positive, bounded or
+fixed. They sit in a model's fields in place of a number and are resolved (`unwrap`)
+inside the differentiated function, because optimistix's least-squares solvers take no
+bounds (equinox's "custom per-parameter behaviour" pattern).
+
+    model = jaxmr.BoucWen(alpha=jaxmr.Positive(1.0), c0=..., A=jaxmr.Fixed(843.0), ...)
+"""
+
+import abc
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+
+from ._custom_types import Array, Float
+from ._misc import as_float_array, check_concrete
+
+
+class AbstractParameter(eqx.Module):
+    """A parameter with a rule for how it is fitted; `value()` is its physical value."""
+
+    @abc.abstractmethod
+    def value(self) -> Array:
+        """The parameter's value, in its physical unit."""
+
+
+class Positive(AbstractParameter):
+    """A positive parameter, fitted as its logarithm (so it can never cross zero, and
+    a step is a relative change: parameters spanning decades are equally scaled).
+
+    **Arguments:** `value`, the (positive) initial value.
+    """
+
+    log_value: Float[Array, "..."]
+
+    def __init__(self, value):
+        value = as_float_array(value)
+        check_concrete(
+            value > 0, f"Positive: the value must be > 0, got {value}.", value
+        )
+        self.log_value = jnp.log(value)
+
+    def value(self) -> Array:
+        return jnp.exp(self.log_value)
+
+
+class Bounded(AbstractParameter):
+    """A parameter kept inside `(lower, upper)` by a logistic map of a free variable.
+
+    **Arguments:** `value` (strictly inside the bounds), `lower`, `upper`.
+    """
+
+    raw: Float[Array, "..."]
+    lower: float = eqx.field(static=True)
+    upper: float = eqx.field(static=True)
+
+    def __init__(self, value, lower: float, upper: float):
+        if not float(lower) < float(upper):
+            raise ValueError(
+                f"Bounded: `lower` must be < `upper`, got {lower} and {upper}."
+            )
+        value = as_float_array(value)
+        check_concrete(
+            (value > lower) & (value < upper),
+            f"Bounded: the value {value} must lie strictly inside ({lower}, {upper}).",
+            value,
+        )
+        self.lower, self.upper = float(lower), float(upper)
+        fraction = (value - self.lower) / (self.upper - self.lower)
+        self.raw = jnp.log(fraction) - jnp.log1p(-fraction)
+
+    def value(self) -> Array:
+        return self.lower + (self.upper - self.lower) * jax.nn.sigmoid(self.raw)
+
+
+class Fixed(AbstractParameter):
+    """A parameter held at its value during a fit (e.g. Bouc–Wen's `A`, to remove the
+    scaling redundancy)."""
+
+    fixed: Float[Array, "..."] = eqx.field(converter=as_float_array)
+
+    def value(self) -> Array:
+        return jax.lax.stop_gradient(self.fixed)
+
+
+def is_parameter(x) -> bool:
+    return isinstance(x, AbstractParameter)
+
+
+def unwrap(tree):
+    """Replace every constraint wrapper in `tree` by its value."""
+    return jax.tree.map(
+        lambda p: p.value() if is_parameter(p) else p, tree, is_leaf=is_parameter
+    )
+
+
+def free_filter(tree):
+    """A filter spec: True for the array leaves a fit varies (not those in `Fixed`)."""
+
+    def spec(x):
+        if isinstance(x, Fixed):
+            return jax.tree.map(lambda _: False, x)
+        return eqx.is_inexact_array(x)
+
+    return jax.tree.map(spec, tree, is_leaf=lambda x: isinstance(x, Fixed))

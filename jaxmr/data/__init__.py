@@ -1,0 +1,20 @@
+"""Measured data: experiments, jaxmr's CSV format and loaders of public datasets.
+
+Not jit-able (files and NumPy), hence apart from the models: `import jaxmr.data`.
+An `Experiment` holds one test in SI units and turns it into the signals that
+`jaxmr.simulate` takes (`experiment.motion()`, `experiment.current_signal()`).
+"""
+
+from ._csv import read_csv as read_csv, write_csv as write_csv
+from ._experiment import Experiment as Experiment
+from ._loaders import (
+    BOUCWEN_BENCHMARK_FS as BOUCWEN_BENCHMARK_FS,
+    BoucWenBenchmarkInput as BoucWenBenchmarkInput,
+    BoucWenBenchmarkTrain as BoucWenBenchmarkTrain,
+    UTFSMConditions as UTFSMConditions,
+    load_boucwen_benchmark_input as load_boucwen_benchmark_input,
+    load_boucwen_benchmark_train as load_boucwen_benchmark_train,
+    load_nees as load_nees,
+    load_utfsm as load_utfsm,
+    utfsm_test_conditions as utfsm_test_conditions,
+)

@@ -1,0 +1,262 @@
+"""jaxmr's canonical CSV format for one experiment (read and written with numpy only).
+
+```
+# jaxmr experiment
+# name: 10mm1Hz0x5A
+# units: t [s], x [m], v [m/s], i [A], F [N]
+# velocity: measured
+t,x,v,i,F
+0.0,-9.3e-06,-0.001,0.5,-40.49
+...
+```
+
+Lines starting with `#` are comments (anywhere); blank lines are skipped. The first
+other line is the header naming the columns, comma-separated; every following line is
+one sample with one number per column. Columns (names are case-sensitive):
+
+- `t` [s], required, strictly increasing;
+- linear damper: `x` [m] (required), `v` [m/s] (optional: computed from `x` by central
+  differences when absent), `F` [N] (optional: needed to fit, not to predict);
+- rotary brake: `theta` [rad], `omega` [rad/s], `T` [N·m], in the same roles;
+- the input, exactly one of `i` [A] (coil current) or `u` [V] (command voltage),
+  constant or time-varying.
+
+Comments of the form `# name: ...` and `# velocity: ...` set the experiment's name
+(default: the file stem) and the origin of the `v` column (default: measured).
+"""
+
+import difflib
+import os
+from pathlib import Path
+
+import numpy as np
+
+from ._experiment import VELOCITY_MEASURED, Experiment, check_columns
+
+_LINEAR = {"position": "x", "velocity": "v", "force": "F"}
+_ROTARY = {"position": "theta", "velocity": "omega", "force": "T"}
+_INPUTS = {"i": "current", "u": "voltage"}
+_UNITS = {
+    "t": "s",
+    "x": "m",
+    "v": "m/s",
+    "F": "N",
+    "theta": "rad",
+    "omega": "rad/s",
+    "T": "N·m",
+    "i": "A",
+    "u": "V",
+}
+_KNOWN = tuple(_UNITS)
+# Names people write for the canonical columns, for the "did you mean" hint.
+_ALIASES = {
+    "time": "t",
+    "displacement": "x",
+    "disp": "x",
+    "position": "x",
+    "pos": "x",
+    "d": "x",
+    "velocity": "v",
+    "vel": "v",
+    "speed": "v",
+    "force": "F",
+    "angle": "theta",
+    "phi": "theta",
+    "w": "omega",
+    "angular_velocity": "omega",
+    "torque": "T",
+    "current": "i",
+    "voltage": "u",
+}
+
+
+def _expected() -> str:
+    return (
+        "t [s]; x [m], v [m/s] (optional), F [N] (optional) for a damper, or theta "
+        "[rad], omega [rad/s] (optional), T [N·m] (optional) for a brake; and exactly "
+        "one of i [A] or u [V]"
+    )
+
+
+def _suggest(name: str) -> str | None:
+    key = name.split("[")[0].strip().strip("\"'")
+    if key in _KNOWN:
+        return key
+    if key.lower() in _ALIASES:
+        return _ALIASES[key.lower()]
+    lowered = {k.lower(): k for k in _KNOWN}
+    if key.lower() in lowered:
+        return lowered[key.lower()]
+    close = difflib.get_close_matches(key.lower(), list(lowered), n=1, cutoff=0.5)
+    return lowered[close[0]] if close else None
+
+
+def _check_header(names: list[str], where: str) -> None:
+    found = ", ".join(repr(n) for n in names)
+    duplicates = sorted({n for n in names if names.count(n) > 1})
+    if duplicates:
+        raise ValueError(
+            f"{where}: repeated column names {duplicates} in the header ({found}); name "
+            "each column once."
+        )
+    unknown = [n for n in names if n not in _KNOWN]
+    if unknown:
+        hints = []
+        for n in unknown:
+            guess = _suggest(n)
+            hints.append(
+                f"{n!r} (did you mean {guess!r}?)" if guess else f"{n!r} (no match)"
+            )
+        raise ValueError(
+            f"{where}: unknown column names {', '.join(hints)}. Found {found}; expected "
+            f"{_expected()}. Names are case-sensitive and carry no units (SI assumed)."
+        )
+    linear = [n for n in names if n in _LINEAR.values()]
+    rotary = [n for n in names if n in _ROTARY.values()]
+    if linear and rotary:
+        raise ValueError(
+            f"{where}: linear columns {linear} and rotary columns {rotary} are mixed; "
+            "use x, v, F for a damper or theta, omega, T for a brake."
+        )
+    roles = _ROTARY if rotary else _LINEAR
+    missing = [n for n in ("t", roles["position"]) if n not in names]
+    if missing:
+        raise ValueError(
+            f"{where}: missing column(s) {missing}; found {found}; expected {_expected()}."
+        )
+    inputs = [n for n in names if n in _INPUTS]
+    if len(inputs) == 2:
+        raise ValueError(
+            f"{where}: both `i` (current [A]) and `u` (voltage [V]) are given; keep "
+            "exactly one input column."
+        )
+    if not inputs:
+        raise ValueError(
+            f"{where}: missing the input column: `i` (coil current [A]) or `u` (command "
+            f"voltage [V]); found {found}. For a test without current write a column of "
+            "zeros."
+        )
+
+
+def read_csv(path: str | os.PathLike) -> Experiment:
+    """Read one experiment from jaxmr's canonical CSV format (see the module docstring).
+
+    **Arguments:**
+
+    - `path`: the file.
+
+    **Returns:** an `Experiment`; the velocity is computed from the position by central
+    differences (`Experiment.from_arrays`) when the file has no velocity column.
+
+    **Raises:** `ValueError` naming the problem: unknown or missing columns (with the
+    expected names and the nearest one), both `i` and `u`, linear and rotary columns
+    mixed, a row with the wrong number of cells, an unparsable or non-finite cell
+    (with its line number), time not strictly increasing, fewer than 3 rows.
+    """
+    path = Path(path)
+    where = str(path)
+    metadata: dict[str, str] = {}
+    header: list[str] | None = None
+    header_line = 0
+    rows: list[list[float]] = []
+    lines: list[int] = []
+    with open(path, encoding="utf-8") as file:
+        for number, text in enumerate(file, start=1):
+            text = text.strip()
+            if not text:
+                continue
+            if text.startswith("#"):
+                key, sep, value = text[1:].partition(":")
+                if sep and key.strip().lower() in ("name", "velocity"):
+                    metadata.setdefault(key.strip().lower(), value.strip())
+                continue
+            cells = [c.strip() for c in text.split(",")]
+            if header is None:
+                header, header_line = cells, number
+                _check_header(header, where)
+                continue
+            if len(cells) != len(header):
+                raise ValueError(
+                    f"{where}: line {number} has {len(cells)} cells but the header "
+                    f"(line {header_line}) names {len(header)} columns "
+                    f"({', '.join(header)}); every row needs one value per column."
+                )
+            row = []
+            for name, cell in zip(header, cells):
+                try:
+                    row.append(float(cell))
+                except ValueError:
+                    raise ValueError(
+                        f"{where}: line {number}, column `{name}`: cannot read "
+                        f"{cell!r} as a number."
+                    ) from None
+            rows.append(row)
+            lines.append(number)
+    if header is None:
+        raise ValueError(f"{where}: no header line (only comments or blank lines).")
+    data = np.array(rows, dtype=np.float64).reshape(len(rows), len(header))
+    columns = {name: data[:, k] for k, name in enumerate(header)}
+    # Time first: check_columns reads its first column as the time.
+    ordered = {"t": columns["t"]} | {k: c for k, c in columns.items() if k != "t"}
+    check_columns(ordered, where, row=lambda k: f"line {lines[k]}")
+
+    rotary = any(n in columns for n in _ROTARY.values())
+    roles = _ROTARY if rotary else _LINEAR
+    input_name = "i" if "i" in columns else "u"
+    common = dict(
+        current=columns[input_name],
+        force=columns.get(roles["force"]),
+        name=metadata.get("name") or path.stem,
+        rotary=rotary,
+        drive=_INPUTS[input_name],
+    )
+    if roles["velocity"] in columns:
+        return Experiment(
+            columns["t"],
+            columns[roles["position"]],
+            columns[roles["velocity"]],
+            velocity_source=metadata.get("velocity", VELOCITY_MEASURED),
+            **common,
+        )
+    return Experiment.from_arrays(columns["t"], columns[roles["position"]], **common)
+
+
+def write_csv(
+    experiment: Experiment, path: str | os.PathLike, *, comment: str | None = None
+) -> None:
+    """Write an experiment in jaxmr's canonical CSV format (see the module docstring).
+
+    Numbers are written in Python's shortest exact form, so `read_csv` gives back the
+    same values. The header comments state the units, the name and the velocity's
+    origin; `comment` (e.g. provenance: laboratory, date, source) is added as further
+    comment lines.
+
+    **Arguments:**
+
+    - `experiment`: the `Experiment`.
+    - `path`: the file to write (overwritten).
+    - `comment`: optional free text, one comment line per text line.
+    """
+    roles = _ROTARY if experiment.rotary else _LINEAR
+    input_name = "i" if experiment.drive == "current" else "u"
+    names = ["t", roles["position"], roles["velocity"], input_name]
+    arrays = [experiment.t, experiment.x, experiment.v, experiment.current]
+    if experiment.force is not None:
+        names.append(roles["force"])
+        arrays.append(experiment.force)
+    data = np.stack([np.asarray(a, dtype=np.float64) for a in arrays], axis=1)
+
+    def one_line(text: str) -> str:
+        return " ".join(text.splitlines())
+
+    header = [
+        "# jaxmr experiment (canonical CSV: comment lines start with '#')",
+        f"# name: {one_line(experiment.name)}",
+        "# units: " + ", ".join(f"{n} [{_UNITS[n]}]" for n in names),
+        f"# velocity: {one_line(experiment.velocity_source)}",
+    ]
+    if comment:
+        header += [f"# {line}" for line in comment.splitlines()]
+    header.append(",".join(names))
+    body = "\n".join(",".join(map(repr, row)) for row in data.tolist())
+    Path(path).write_text("\n".join(header) + "\n" + body + "\n", encoding="utf-8")

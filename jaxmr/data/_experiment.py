@@ -1,0 +1,397 @@
+"""One measured test of a damper or brake: motion, input and force, with their checks."""
+
+import warnings
+from collections.abc import Callable, Sequence
+from typing import TypeAlias
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+
+from .._custom_types import Array, ArrayLike, Float
+from .._misc import as_float_array, is_concrete
+from .._signal import Constant, Sampled
+
+# Plain lists are accepted as well as arrays: measured columns often arrive as lists.
+DataLike: TypeAlias = ArrayLike | Sequence[float]
+
+VELOCITY_MEASURED = "measured"
+VELOCITY_CENTRAL = (
+    "computed: central differences of x, numpy.gradient(x, t, edge_order=2)"
+)
+
+# Thresholds of the unit-plausibility warnings (SI units expected). Each is far outside
+# what a laboratory MR damper or brake produces in SI, and close to what the common unit
+# mistake gives: a stroke of 0.5 m is beyond any MR damper test rig (±25 mm is typical;
+# millimetres in a metre column give hundreds), a 1 s sample step is beyond any
+# dynamic test (milliseconds in a seconds column give 1 or more), 1 MN is beyond the
+# largest (200 kN seismic) MR dampers, and 50 A is ten times the largest coil currents
+# (milliamperes in an ampere column give hundreds).
+MAX_DISPLACEMENT_AMPLITUDE = 0.5  # m, half the peak-to-peak displacement
+MAX_TIME_STEP = 1.0  # s, median sample step
+MAX_FORCE = 1e6  # N (N·m for a brake), largest magnitude
+MAX_CURRENT = 50.0  # A, largest magnitude (not checked for a voltage drive)
+# A measured velocity whose RMS differs from that of the derivative of the displacement
+# by more than this factor has other units (mm/s with m: 1000; cm/s with m: 100; deg/s
+# with rad: 57). Measurement noise and filtering change the ratio by far less.
+MAX_VELOCITY_RATIO = 10.0
+
+_DRIVES = ("current", "voltage")
+
+
+def _from_sequence(a):
+    # Lists are turned into arrays here: jax takes no lists (and the arrays may also be
+    # tracers, which must not go through numpy).
+    return np.asarray(a, dtype=np.float64) if isinstance(a, (list, tuple)) else a
+
+
+def _index_label(k: int) -> str:
+    return f"index {k}"
+
+
+def check_columns(
+    columns: dict[str, np.ndarray],
+    where: str,
+    row: Callable[[int], str] = _index_label,
+) -> None:
+    """Raise `ValueError` if the named 1-D columns are unfit for an experiment.
+
+    Checks, in this order: each column is 1-D, all have one length, there are at least
+    3 samples, every value is finite, and the time column `t` (the first column) is
+    strictly increasing. `row(k)` names sample `k` in the messages ("index 17", or
+    "line 19" for a file).
+    """
+    for name, column in columns.items():
+        if column.ndim != 1:
+            raise ValueError(
+                f"{where}: column `{name}` must be 1-D (one value per sample), got "
+                f"shape {column.shape}."
+            )
+    lengths = {name: column.shape[0] for name, column in columns.items()}
+    if len(set(lengths.values())) > 1:
+        listed = ", ".join(f"`{name}`: {n}" for name, n in lengths.items())
+        raise ValueError(
+            f"{where}: columns must have equal lengths (one value per sample time), got "
+            f"{listed}."
+        )
+    n = next(iter(lengths.values()))
+    if n < 3:
+        raise ValueError(
+            f"{where}: at least 3 samples are needed (for central differences and a "
+            f"motion interpolant), got {n}."
+        )
+    for name, column in columns.items():
+        bad = np.flatnonzero(~np.isfinite(column))
+        if bad.size:
+            k = int(bad[0])
+            raise ValueError(
+                f"{where}: column `{name}` has a non-finite value ({float(column[k])}) at "
+                f"{row(k)} ({bad.size} non-finite in that column); repair or remove "
+                "those samples (jaxmr drops nothing silently)."
+            )
+    time_name, t = next(iter(columns.items()))
+    steps = np.diff(t)
+    bad = np.flatnonzero(steps <= 0)
+    if bad.size:
+        k = int(bad[0]) + 1
+        raise ValueError(
+            f"{where}: time `{time_name}` must be strictly increasing, but "
+            f"{time_name}={float(t[k])!r} at {row(k)} does not exceed "
+            f"{float(t[k - 1])!r} at "
+            f"{row(k - 1)} ({bad.size} such steps); sort the samples and remove repeated "
+            "time stamps."
+        )
+
+
+def central_velocity(t: np.ndarray, x: np.ndarray) -> np.ndarray:
+    r"""$\dot x$ at the samples by second-order finite differences on the actual
+    (possibly uneven) sample times: central inside, one-sided second order at both ends
+    (`numpy.gradient(x, t, edge_order=2)`). For a sine of angular frequency $\omega$
+    sampled every $h$ the relative error is about $(\omega h)^2/6$ inside and
+    $(\omega h)^2/3$ at the ends."""
+    return np.gradient(x, t, edge_order=2)
+
+
+def _rms(a: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(np.square(a))))
+
+
+def warn_implausible_units(
+    t: np.ndarray,
+    x: np.ndarray,
+    v: np.ndarray,
+    current: np.ndarray,
+    force: np.ndarray | None,
+    *,
+    rotary: bool,
+    drive: str,
+    velocity_measured: bool,
+    where: str,
+) -> None:
+    """`UserWarning`s for values that are implausible in SI units (thresholds above)."""
+    position, velocity, load = ("theta", "omega", "T") if rotary else ("x", "v", "F")
+
+    def warn(message):
+        warnings.warn(f"{where}: {message}", UserWarning, stacklevel=4)
+
+    dt = float(np.median(np.diff(t)))
+    if dt > MAX_TIME_STEP:
+        warn(
+            f"the median time step is {dt:g} s (> {MAX_TIME_STEP:g} s): is `t` in "
+            "milliseconds? jaxmr expects seconds."
+        )
+    if not rotary:
+        amplitude = 0.5 * float(np.max(x) - np.min(x))
+        if amplitude > MAX_DISPLACEMENT_AMPLITUDE:
+            warn(
+                f"the displacement amplitude (half peak-to-peak) is {amplitude:g} m "
+                f"(> {MAX_DISPLACEMENT_AMPLITUDE:g} m): is `x` in millimetres? jaxmr "
+                "expects metres."
+            )
+    if force is not None:
+        peak = float(np.max(np.abs(force)))
+        if peak > MAX_FORCE:
+            unit = "N·m" if rotary else "N"
+            warn(
+                f"the largest |{load}| is {peak:g} {unit} (> {MAX_FORCE:g} {unit}): check "
+                f"its unit; jaxmr expects {unit}."
+            )
+    if drive == "current":
+        peak = float(np.max(np.abs(current)))
+        if peak > MAX_CURRENT:
+            warn(
+                f"the largest |current| is {peak:g} A (> {MAX_CURRENT:g} A): is it in "
+                "milliamperes? jaxmr expects amperes."
+            )
+    if velocity_measured:
+        derivative = _rms(np.gradient(x, t))
+        measured = _rms(v)
+        if derivative > 0 and measured > 0:
+            ratio = measured / derivative
+            if not 1 / MAX_VELOCITY_RATIO <= ratio <= MAX_VELOCITY_RATIO:
+                warn(
+                    f"the RMS of `{velocity}` is {ratio:g} times that of the derivative "
+                    f"of `{position}`: their units disagree (e.g. mm/s with m, or deg/s "
+                    f"with rad); give `{position}` and `{velocity}` in SI units."
+                )
+
+
+class Experiment(eqx.Module):
+    r"""One measured test of an MR damper (or brake): prescribed motion, input and the
+    measured force, sampled at the times `t`.
+
+    All columns are 1-D arrays of one length, in SI units: for a linear damper
+    displacement $x$ [m], velocity $v$ [m/s] and force $F$ [N]; for a brake
+    (`rotary=True`) angle [rad], angular velocity [rad/s] and torque [N·m] in the same
+    fields. The input is the coil current [A] (`drive="current"`) or the command voltage
+    [V] (`drive="voltage"`); a constant input is stored as a constant array.
+
+    The constructor checks the data at once (when the arrays are concrete): every column
+    finite (the error names the column and the first bad index; nothing is dropped),
+    equal lengths, strictly increasing time, at least 3 samples. It warns
+    (`UserWarning`) about values that are implausible in SI units: a displacement
+    amplitude above 0.5 m, a median time step above 1 s, a force above 1e6 N, a current
+    above 50 A, or a measured velocity whose RMS is more than 10 times off that of the
+    displacement's derivative.
+
+    **Arguments:**
+
+    - `t`: sample times [s], strictly increasing.
+    - `x`: displacement [m] (angle [rad]).
+    - `v`: velocity [m/s] (angular velocity [rad/s]). Use `Experiment.from_arrays` to
+      compute it from `x`.
+    - `current`: the input, current [A] or voltage [V]: one value per sample or a
+      scalar (broadcast).
+    - `force`: measured force [N] (torque [N·m]), or `None` (prediction only).
+    - `name`: a label, e.g. the file stem.
+    - `rotary`: a brake (angle, torque) rather than a linear damper.
+    - `drive`: `"current"` or `"voltage"`: what `current` holds.
+    - `velocity_source`: `"measured"`, or how `v` was computed.
+    """
+
+    t: Float[Array, " samples"] = eqx.field(converter=as_float_array)
+    x: Float[Array, " samples"] = eqx.field(converter=as_float_array)
+    v: Float[Array, " samples"] = eqx.field(converter=as_float_array)
+    current: Float[Array, " samples"] = eqx.field(converter=as_float_array)
+    force: Float[Array, " samples"] | None = eqx.field(
+        converter=lambda f: None if f is None else as_float_array(f)
+    )
+    name: str = eqx.field(static=True)
+    rotary: bool = eqx.field(static=True)
+    drive: str = eqx.field(static=True)
+    velocity_source: str = eqx.field(static=True)
+
+    def __init__(
+        self,
+        t: DataLike,
+        x: DataLike,
+        v: DataLike,
+        current: DataLike | float = 0.0,
+        force: DataLike | None = None,
+        *,
+        name: str = "",
+        rotary: bool = False,
+        drive: str = "current",
+        velocity_source: str = VELOCITY_MEASURED,
+    ):
+        if drive not in _DRIVES:
+            raise ValueError(
+                f"`drive` must be 'current' (input in A) or 'voltage' (input in V), "
+                f"got {drive!r}."
+            )
+        if not isinstance(name, str) or not isinstance(velocity_source, str):
+            raise TypeError("`name` and `velocity_source` must be strings.")
+        t, x, v, current, force = (_from_sequence(a) for a in (t, x, v, current, force))
+        t = as_float_array(t)
+        current = as_float_array(current)
+        if current.ndim == 0 and t.ndim == 1:
+            # A constant input is stored broadcast so every column has one length.
+            current = jnp.broadcast_to(current, t.shape)
+        self.t = t
+        self.x = x
+        self.v = v
+        self.current = current
+        self.force = force
+        self.name = name
+        self.rotary = bool(rotary)
+        self.drive = drive
+        self.velocity_source = velocity_source
+
+    def __check_init__(self):
+        arrays = (self.t, self.x, self.v, self.current, self.force)
+        if not is_concrete(*arrays):
+            return  # built under jit from traced arrays: nothing to check by value
+        columns = self._columns()
+        check_columns(columns, self._where())
+        warn_implausible_units(
+            *(columns[k] for k in ("t", "x", "v", "current")),
+            columns.get("force"),
+            rotary=self.rotary,
+            drive=self.drive,
+            velocity_measured=self.velocity_source == VELOCITY_MEASURED,
+            where=self._where(),
+        )
+
+    def _where(self) -> str:
+        return f"Experiment {self.name!r}" if self.name else "Experiment"
+
+    def _columns(self) -> dict[str, np.ndarray]:
+        columns = {
+            "t": np.asarray(self.t),
+            "x": np.asarray(self.x),
+            "v": np.asarray(self.v),
+            "current": np.asarray(self.current),
+        }
+        if self.force is not None:
+            columns["force"] = np.asarray(self.force)
+        return columns
+
+    @classmethod
+    def from_arrays(
+        cls,
+        t: DataLike,
+        x: DataLike,
+        *,
+        v: DataLike | None = None,
+        current: DataLike | float = 0.0,
+        force: DataLike | None = None,
+        name: str = "",
+        rotary: bool = False,
+        drive: str = "current",
+    ) -> "Experiment":
+        r"""An experiment from arrays, computing the velocity when it is not measured.
+
+        Without `v` the velocity is computed from `x` by second-order finite
+        differences on the actual sample times (`numpy.gradient(x, t, edge_order=2)`:
+        central inside, one-sided at both ends; relative error about $(\omega h)^2/6$
+        for a sine of angular frequency $\omega$ sampled every $h$), and
+        `velocity_source` says so. Noisy displacements give noisy velocities: filter
+        `x` first, or pass a measured `v`.
+
+        **Arguments:** as `Experiment`; `current` a scalar (constant) or one value per
+        sample.
+
+        **Returns:** an `Experiment`.
+        """
+        where = f"Experiment {name!r}" if name else "Experiment"
+        if v is None:
+            t_np = np.asarray(t, dtype=np.float64)
+            x_np = np.asarray(x, dtype=np.float64)
+            # Checked before differencing so that a bad time column is reported as such
+            # rather than as a division by zero.
+            check_columns({"t": t_np, "x": x_np}, where)
+            v = central_velocity(t_np, x_np)
+            source = VELOCITY_CENTRAL
+        else:
+            source = VELOCITY_MEASURED
+        return cls(
+            t,
+            x,
+            v,
+            current,
+            force,
+            name=name,
+            rotary=rotary,
+            drive=drive,
+            velocity_source=source,
+        )
+
+    def __len__(self) -> int:
+        return self.t.shape[0]
+
+    @property
+    def duration(self) -> float:
+        """`t[-1] - t[0]` [s]."""
+        t = np.asarray(self.t)
+        return float(t[-1] - t[0])
+
+    @property
+    def sample_rate(self) -> float:
+        """The median sampling rate [Hz]: 1 / median time step."""
+        return float(1.0 / np.median(np.diff(np.asarray(self.t))))
+
+    @property
+    def is_constant_current(self) -> bool:
+        """Whether the input (current or voltage) is the same at every sample. False
+        for traced arrays (under jit), where it cannot be known."""
+        if not is_concrete(self.current):
+            return False
+        current = np.asarray(self.current)
+        return bool(np.all(current == current[0]))
+
+    def motion(self) -> Sampled:
+        """The displacement (angle) as a signal: the cubic Hermite interpolant through
+        `x` with derivatives `v`, so the model sees exactly the measured (or computed)
+        velocity at the samples."""
+        return Sampled(self.t, self.x, derivatives=self.v)
+
+    def current_signal(self) -> Constant | Sampled:
+        """The input (current [A], or voltage [V] when `drive="voltage"`) as a signal:
+        `Constant` when it is constant, else the piecewise-linear `Sampled`."""
+        if self.is_constant_current:
+            return Constant(self.current[0])
+        return Sampled(self.t, self.current)
+
+    def window(
+        self, start: float | None = None, end: float | None = None
+    ) -> "Experiment":
+        """The samples with `start <= t <= end` [s] (either bound may be `None`), as an
+        `Experiment` with the same metadata; time is not shifted. E.g. drop the first
+        cycle of a sine test, whose hysteretic state starts unknown."""
+        t = np.asarray(self.t)
+        keep = np.ones(t.shape, dtype=bool)
+        if start is not None:
+            keep &= t >= start
+        if end is not None:
+            keep &= t <= end
+        return Experiment(
+            self.t[keep],
+            self.x[keep],
+            self.v[keep],
+            self.current[keep],
+            None if self.force is None else self.force[keep],
+            name=self.name,
+            rotary=self.rotary,
+            drive=self.drive,
+            velocity_source=self.velocity_source,
+        )

@@ -1,0 +1,424 @@
+"""jaxmr.data: experiments, the canonical CSV format and the public-dataset loaders.
+
+The loaders are tested on the real files in `../shared/data` (beside the repository);
+missing data is a failure, not a skip.
+"""
+
+import re
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import jaxmr
+import jaxmr.data as jd
+
+DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
+
+
+def _data(*parts: str) -> Path:
+    path = DATA.joinpath(*parts)
+    assert path.exists(), (
+        f"test data missing: {path}. The public datasets must lie in ../shared/data "
+        "beside the repository (see that folder's README)."
+    )
+    return path
+
+
+def _sine(n=2001, rate=1000.0, amplitude=0.01, frequency=2.0):
+    t = np.arange(n) / rate
+    w = 2 * np.pi * frequency
+    return t, amplitude * np.sin(w * t), amplitude * w * np.cos(w * t)
+
+
+# ---------------------------------------------------------------------------------------
+# Experiment
+
+
+def test_experiment_signals():
+    t, x, v = _sine()
+    force = 100.0 * v
+    e = jd.Experiment(t, x, v, 0.5, force, name="sine")
+    assert len(e) == t.size
+    assert e.is_constant_current
+    assert e.current.shape == t.shape  # a constant input is stored broadcast
+    assert e.duration == pytest.approx(2.0)
+    assert e.sample_rate == pytest.approx(1000.0)
+    assert e.velocity_source == "measured"
+    current = e.current_signal()
+    assert isinstance(current, jaxmr.Constant)
+    assert float(current.value) == 0.5
+    motion = e.motion()
+    assert isinstance(motion, jaxmr.Sampled)
+    # Hermite interpolation: values and derivatives at the samples are the data's.
+    ts = jnp.asarray(t[100:110])
+    np.testing.assert_allclose(jax.vmap(motion)(ts), x[100:110], rtol=1e-12)
+    np.testing.assert_allclose(jax.vmap(motion.derivative)(ts), v[100:110], rtol=1e-12)
+
+    varying = jd.Experiment.from_arrays(t, x, v=v, current=np.sin(t), force=force)
+    assert not varying.is_constant_current
+    assert isinstance(varying.current_signal(), jaxmr.Sampled)
+
+    part = e.window(0.5, 1.0)
+    assert float(part.t[0]) == 0.5 and float(part.t[-1]) == 1.0 and len(part) == 501
+    assert part.name == "sine" and part.velocity_source == e.velocity_source
+
+
+def test_experiment_goes_through_simulate():
+    t, x, v = _sine(n=201, rate=100.0, amplitude=0.01, frequency=1.0)
+    e = jd.Experiment(t, x, v, 0.5)
+    sol = jaxmr.simulate(
+        jaxmr.Bingham(f_c=10.0, c0=100.0, velocity_scale=0.01),
+        e.motion(),
+        e.current_signal(),
+        e.t,
+        integrator=jaxmr.FixedStep(2),
+    )
+    assert sol.force.shape == t.shape
+
+
+@pytest.mark.parametrize("uneven", [False, True])
+def test_velocity_from_x_matches_the_sine_derivative(uneven):
+    # Second-order differences: relative truncation error about (w h)^2 / 6 inside and
+    # (w h)^2 / 3 at the ends; w h = 2 pi 2 Hz 1 ms = 0.0126, so <= 5.3e-5 (5 % more
+    # for steps up to 1.05 ms). Tolerance 1e-4 of the velocity amplitude.
+    t, x, v = _sine()
+    if uneven:
+        rng = np.random.default_rng(0)
+        t = t + rng.uniform(-0.05e-3, 0.05e-3, t.size)  # ±5 % jitter of the 1 ms step
+        w = 2 * np.pi * 2.0
+        x, v = 0.01 * np.sin(w * t), 0.01 * w * np.cos(w * t)
+    e = jd.Experiment.from_arrays(t, x, current=0.0)
+    assert e.velocity_source.startswith("computed: central differences")
+    error = np.max(np.abs(np.asarray(e.v) - v)) / np.max(np.abs(v))
+    assert error < 1e-4
+
+
+def _bad(**change):
+    t, x, v = _sine(n=10)
+    columns = dict(t=t, x=x, v=v, current=0.5, force=100 * v)
+    columns.update(change)
+    return columns
+
+
+def _nan_at(a, k, value=np.nan):
+    a = np.array(a, dtype=float)
+    a[k] = value
+    return a
+
+
+@pytest.mark.parametrize(
+    "columns, match",
+    [
+        (
+            _bad(x=_nan_at(_sine(n=10)[1], 4)),
+            r"column `x` has a non-finite value \(nan\) at index 4 \(1 non-finite",
+        ),
+        (
+            _bad(force=_nan_at(_nan_at(np.zeros(10), 7, np.inf), 9)),
+            r"column `force` has a non-finite value \(inf\) at index 7 \(2 non-finite",
+        ),
+        (
+            _bad(current=_nan_at(np.zeros(10), 0)),
+            r"column `current` has a non-finite value \(nan\) at index 0",
+        ),
+        (
+            _bad(v=np.zeros(9)),
+            r"equal lengths .* got `t`: 10, `x`: 10, `v`: 9, `current`: 10, `force`: 10",
+        ),
+        (
+            _bad(t=_nan_at(_sine(n=10)[0], 6, 0.001)),
+            r"time `t` must be strictly increasing, but t=0.001 at index 6 does not "
+            r"exceed 0.005 at index 5 \(1 such steps\)",
+        ),
+        (
+            dict(t=[0.0, 1.0], x=[0.0, 0.1], v=[0.1, 0.1]),
+            r"at least 3 samples are needed .* got 2",
+        ),
+        (_bad(x=np.zeros((10, 1))), r"column `x` must be 1-D .* shape \(10, 1\)"),
+    ],
+)
+def test_experiment_rejects_bad_columns(columns, match):
+    with pytest.raises(ValueError, match=match):
+        jd.Experiment(**columns, name="bad")
+
+
+def test_experiment_rejects_bad_settings():
+    t, x, v = _sine(n=10)
+    with pytest.raises(ValueError, match=r"`drive` must be 'current' .* got 'amps'"):
+        jd.Experiment(t, x, v, drive="amps")
+    # Checked before the differencing that would divide by zero or spread the NaN.
+    with pytest.raises(ValueError, match=r"time `t` must be strictly increasing"):
+        jd.Experiment.from_arrays(np.zeros(10), x)
+    with pytest.raises(ValueError, match=r"column `x` has a non-finite .* index 3"):
+        jd.Experiment.from_arrays(t, _nan_at(x, 3))
+    lists = jd.Experiment.from_arrays(t.tolist(), x.tolist(), current=[0.5] * 10)
+    assert lists.is_constant_current
+
+
+@pytest.mark.parametrize(
+    "change, match",
+    [
+        (
+            dict(x=_sine(n=10)[1] * 1e3, v=_sine(n=10)[2] * 1e3),
+            r"displacement amplitude \(half peak-to-peak\) is \d+(\.\d+)? m .* "
+            r"millimetres",
+        ),
+        (
+            dict(t=_sine(n=10)[0] * 1e4, v=_sine(n=10)[2] * 1e-4),
+            r"median time step is 10 s .* milliseconds",
+        ),
+        (dict(force=np.full(10, 2e6)), r"largest \|F\| is 2e\+06 N"),
+        (dict(current=500.0), r"largest \|current\| is 500 A .* milliamperes"),
+        (
+            dict(v=_sine(n=10)[2] * 1e3),
+            r"RMS of `v` is 99\d\.\d+ times that of the derivative of `x`",
+        ),
+    ],
+)
+def test_experiment_warns_about_implausible_units(change, match):
+    columns = _bad(**change)
+    with pytest.warns(UserWarning, match=match):
+        jd.Experiment(**columns)
+
+
+def test_voltage_drive_and_rotary_are_not_checked_as_current_or_stroke():
+    t, x, v = _sine(n=10)
+    jd.Experiment(t, 100 * x, 100 * v, 500.0, drive="voltage", rotary=True)
+
+
+# ---------------------------------------------------------------------------------------
+# CSV
+
+
+def _assert_same(a: jd.Experiment, b: jd.Experiment):
+    for field in ("t", "x", "v", "current", "force"):
+        fa, fb = getattr(a, field), getattr(b, field)
+        assert (fa is None) == (fb is None), field
+        if fa is not None:
+            np.testing.assert_array_equal(np.asarray(fa), np.asarray(fb), err_msg=field)
+    for field in ("name", "rotary", "drive", "velocity_source"):
+        assert getattr(a, field) == getattr(b, field), field
+
+
+@pytest.mark.parametrize(
+    "rotary, drive, constant, with_force",
+    [
+        (False, "current", True, True),
+        (False, "voltage", False, True),
+        (True, "current", False, True),
+        (True, "voltage", True, False),
+    ],
+)
+def test_csv_round_trip(tmp_path, rotary, drive, constant, with_force):
+    t, x, v = _sine(n=300)
+    t = t + 0.1 / 3  # not round numbers
+    current = 0.75 if constant else 0.5 + 0.25 * np.sin(3 * t)
+    e = jd.Experiment.from_arrays(
+        t,
+        x,
+        v=None if constant else v,  # both a computed and a measured velocity
+        current=current,
+        force=300.0 * v + 1e-3 if with_force else None,
+        name="round trip",
+        rotary=rotary,
+        drive=drive,
+    )
+    path = tmp_path / "e.csv"
+    jd.write_csv(e, path, comment="rig: test\nsecond line")
+    text = path.read_text()
+    assert "# rig: test\n# second line\n" in text
+    names = ("theta", "omega", "T") if rotary else ("x", "v", "F")
+    header = ["t", names[0], names[1], "i" if drive == "current" else "u"]
+    header += [names[2]] if with_force else []
+    assert ",".join(header) + "\n" in text
+    assert "[N·m]" in text if rotary and with_force else True
+    back = jd.read_csv(path)
+    _assert_same(e, back)
+    assert back.is_constant_current == constant
+
+
+def test_csv_without_velocity_computes_it(tmp_path):
+    t, x, v = _sine(n=400)
+    rows = "\n".join(f"{a!r},{b!r},0.0" for a, b in zip(t.tolist(), x.tolist()))
+    path = tmp_path / "no_v.csv"
+    path.write_text("# a comment\n\nt,x,i\n" + rows + "\n")
+    e = jd.read_csv(path)
+    assert e.name == "no_v"
+    assert e.force is None
+    assert e.velocity_source.startswith("computed")
+    assert np.max(np.abs(np.asarray(e.v) - v)) < 1e-4 * np.max(np.abs(v))
+
+
+_GOOD_ROWS = ["0.0,0.0,0.0,1.0", "0.001,0.001,0.0,2.0", "0.002,0.002,0.0,3.0"]
+
+
+@pytest.mark.parametrize(
+    "header, rows, match",
+    [
+        (
+            "time,x,i,F",
+            _GOOD_ROWS,
+            r"unknown column names 'time' \(did you mean 't'\?\). Found 'time', 'x', "
+            r"'i', 'F'; expected t \[s\]; x \[m\]",
+        ),
+        ("t,X,i,F", _GOOD_ROWS, r"'X' \(did you mean 'x'\?\)"),
+        ("t,x [m],i,F", _GOOD_ROWS, r"'x \[m\]' \(did you mean 'x'\?\)"),
+        ("t,v,i,F", _GOOD_ROWS, r"missing column\(s\) \['x'\]; found 't', 'v'"),
+        ("t,x,i,u", _GOOD_ROWS, r"both `i` \(current \[A\]\) and `u`"),
+        ("t,x,v,F", _GOOD_ROWS, r"missing the input column: `i` .* or `u`"),
+        ("t,x,i,T", _GOOD_ROWS, r"linear columns \['x'\] and rotary columns \['T'\]"),
+        ("t,x,i,x", _GOOD_ROWS, r"repeated column names \['x'\]"),
+        (
+            "t,x,i,F",
+            ["0.0,0.0,0.0,1.0", "0.001,0.001,0.0", "0.002,0.002,0.0,3.0"],
+            r"line 3 has 3 cells but the header \(line 1\) names 4 columns",
+        ),
+        (
+            "t,x,i,F",
+            ["0.0,0.0,0.0,1.0", "# comment", "0.001,0.001,0.0,abc", "0.002,0,0,3"],
+            r"line 4, column `F`: cannot read 'abc' as a number",
+        ),
+        (
+            "t,x,i,F",
+            ["0.0,0.0,0.0,1.0", "0.001,,0.0,2.0", "0.002,0.002,0.0,3.0"],
+            r"line 3, column `x`: cannot read '' as a number",
+        ),
+        (
+            "t,x,i,F",
+            ["0.0,0.0,0.0,1.0", "0.001,0.001,0.0,2.0", "0.002,nan,0.0,3.0"],
+            r"column `x` has a non-finite value \(nan\) at line 4",
+        ),
+        (
+            "t,x,i,F",
+            ["0.0,0.0,0.0,1.0", "0.001,0.001,0.0,-inf", "0.002,0.002,0.0,3.0"],
+            r"column `F` has a non-finite value \(-inf\) at line 3",
+        ),
+        (
+            "t,x,i,F",
+            ["0.0,0.0,0.0,1.0", "0.002,0.001,0.0,2.0", "0.001,0.002,0.0,3.0"],
+            r"time `t` must be strictly increasing, but t=0.001 at line 4 does not "
+            r"exceed 0.002 at line 3",
+        ),
+        ("t,x,i,F", _GOOD_ROWS[:2], r"at least 3 samples are needed .* got 2"),
+    ],
+)
+def test_csv_rejects_bad_files(tmp_path, header, rows, match):
+    path = tmp_path / "bad.csv"
+    path.write_text("\n".join([header, *rows]) + "\n")
+    with pytest.raises(ValueError, match=match) as info:
+        jd.read_csv(path)
+    assert str(path) in str(info.value)
+
+
+def test_csv_without_header(tmp_path):
+    path = tmp_path / "empty.csv"
+    path.write_text("# only a comment\n")
+    with pytest.raises(ValueError, match="no header line"):
+        jd.read_csv(path)
+
+
+def test_csv_warns_about_millimetres(tmp_path):
+    path = tmp_path / "mm.csv"
+    t, x, _ = _sine(n=50)
+    path.write_text("t,x,i\n" + "\n".join(f"{a},{1e3 * b},0" for a, b in zip(t, x)))
+    with pytest.warns(UserWarning, match=r"amplitude .* is \d+(\.\d+)? m"):
+        jd.read_csv(path)
+
+
+# ---------------------------------------------------------------------------------------
+# Public datasets
+
+
+def test_load_utfsm():
+    experiments = jd.load_utfsm(_data("utfsm_mr_damper", "sine"))
+    assert len(experiments) == 30
+    measured = {0.002: 1.6e-3, 0.005: 4.55e-3, 0.010: 9.7e-3, 0.025: 24.5e-3}  # m
+    pairs = {(0.002, 5.0), (0.005, 3.0), (0.010, 1.0)}
+    pairs |= {(0.025, f) for f in (0.1, 0.25, 0.5)}
+    seen = set()
+    for e in experiments:
+        amplitude, frequency, current = jd.utfsm_test_conditions(e)
+        assert re.fullmatch(r"\d+mm[\dx]+Hz[\dx]+A", e.name)
+        seen.add((amplitude, frequency, current))
+        assert e.is_constant_current and np.asarray(e.current)[0] == current
+        assert e.drive == "current" and not e.rotary and e.force is not None
+        x = np.asarray(e.x)
+        # Measured amplitude within 5 % of the README's (the 25 mm / 0.1 Hz records
+        # are offset by up to 1.1 mm: -23.3 to +25.6 mm).
+        half_range = 0.5 * (x.max() - x.min())
+        assert half_range == pytest.approx(measured[amplitude], rel=0.05), e.name
+        assert np.max(np.abs(x)) < 1.06 * measured[amplitude], e.name
+        dt = (
+            0.005
+            if (amplitude, frequency) in {(0.002, 5.0)} or amplitude == 0.025
+            else 0.001
+        )
+        assert e.sample_rate == pytest.approx(1 / dt)
+        assert np.max(np.abs(np.asarray(e.force))) < 1.6e3  # N
+    assert seen == {(a, f, i) for a, f in pairs for i in (0.0, 0.25, 0.5, 0.75, 1.0)}
+    assert jd.utfsm_test_conditions("25mm0x25Hz0x5A") == (0.025, 0.25, 0.5)
+    with pytest.raises(ValueError, match="not a UTFSM test name"):
+        jd.utfsm_test_conditions("ranran_50")
+
+
+def test_load_utfsm_file_velocity_is_a_backward_difference():
+    e_file, e_central = (
+        next(
+            e
+            for e in jd.load_utfsm(_data("utfsm_mr_damper", "sine"), velocity=kind)
+            if e.name == "10mm1Hz0x5A"
+        )
+        for kind in ("file", "central")
+    )
+    assert e_file.velocity_source.startswith("file: backward differences")
+    x, v = np.asarray(e_file.x), np.asarray(e_file.v)
+    # The file prints 8 significant digits: x to 1e-11 m, so differences to 2e-8 m/s.
+    np.testing.assert_allclose(v[1:], np.diff(x) / 1e-3, rtol=0, atol=2e-8)
+    np.testing.assert_array_equal(np.asarray(e_central.x), x)
+
+
+def test_load_nees():
+    path = _data("nees_dyke_mr_damper", "ranran_50.csv")
+    e = jd.load_nees(path)
+    assert len(e) == 74068
+    assert e.sample_rate == pytest.approx(3004.8, rel=1e-9)
+    assert float(e.t[1]) == pytest.approx(1 / 3004.8, rel=1e-12)
+    assert e.duration == pytest.approx(74067 / 3004.8)
+    assert e.drive == "voltage" and e.name == "ranran_50"
+    force = np.asarray(e.force)
+    assert np.max(np.abs(force)) < 2.5e3 and np.max(np.abs(force)) > 1.5e3  # N
+    assert np.max(np.abs(np.asarray(e.x))) < 0.0075  # m: ±0.6 cm
+    assert -0.5 < float(jnp.min(e.current)) and float(jnp.max(e.current)) < 3.0  # V
+    trimmed = jd.load_nees(path, trim=True, velocity="central")
+    assert 21.0 < trimmed.duration < 22.0
+    assert trimmed.velocity_source.startswith("computed")
+
+
+def test_load_boucwen_benchmark():
+    t, u, y, fs = jd.load_boucwen_benchmark_train(
+        _data("boucwen_benchmark", "train.h5")
+    )
+    assert t.shape == u.shape == y.shape == (40960,)
+    assert fs == 750.0 and t[1] == pytest.approx(1 / 750)
+    assert np.std(u) == pytest.approx(50.0, rel=0.01)  # N RMS
+    assert np.max(np.abs(y)) < 5e-3  # m
+    for kind, n in (("multisine", 8192), ("sinesweep", 153000)):
+        record = jd.load_boucwen_benchmark_input(
+            _data("boucwen_benchmark", f"uval_{kind}.mat")
+        )
+        assert record.kind == kind
+        assert record.t.shape == record.u.shape == (n,)
+
+
+def test_loaders_say_where_to_download(tmp_path):
+    with pytest.raises(FileNotFoundError, match="DanielMaurelE/vRTHS_AMBC_MRdamper"):
+        jd.load_utfsm(tmp_path / "nowhere")
+    with pytest.raises(FileNotFoundError, match="no file named"):
+        jd.load_utfsm(tmp_path)
+    with pytest.raises(FileNotFoundError, match=r"10\.4231/D3V11VM6X"):
+        jd.load_nees(tmp_path / "ranran_50.csv")
+    with pytest.raises(FileNotFoundError, match=r"10\.4121/12967592"):
+        jd.load_boucwen_benchmark_train(tmp_path / "train.h5")
