@@ -45,15 +45,6 @@ from ._solution import RESULTS as RESULTS, Solution as Solution
 __version__ = "0.1.0"
 from ._analysis import energy_per_cycle as energy_per_cycle
 from ._identify import FitResult as FitResult, fit as fit
-from ._magnetic import (
-    AISI_12L14_MAJOR_LOOP as AISI_12L14_MAJOR_LOOP,
-    BinghamDisc as BinghamDisc,
-    HodgdonMaterial as HodgdonMaterial,
-    MagneticStage as MagneticStage,
-    aisi_12l14 as aisi_12l14,
-    mr_brake_actuator as mr_brake_actuator,
-    mrb_107_3 as mrb_107_3,
-)
 from ._parameter import (
     AbstractParameter as AbstractParameter,
     Bounded as Bounded,
@@ -68,4 +59,3 @@ from ._presets import (
     sas_brake_dahl as sas_brake_dahl,
     spencer_1997 as spencer_1997,
 )
-from ._ramp import Ramp as Ramp
