@@ -59,3 +59,9 @@ from ._presets import (
     sas_brake_dahl as sas_brake_dahl,
     spencer_1997 as spencer_1997,
 )
+from ._serialize import (
+    load_model as load_model,
+    model_from_dict as model_from_dict,
+    model_to_dict as model_to_dict,
+    save_model as save_model,
+)
