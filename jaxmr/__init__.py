@@ -44,7 +44,7 @@ from ._solution import RESULTS as RESULTS, Solution as Solution
 
 __version__ = "0.1.0"
 from ._analysis import energy_per_cycle as energy_per_cycle
-from ._identify import FitResult as FitResult, fit as fit
+from ._identify import FitResult as FitResult, fit as fit, fit_each as fit_each
 from ._parameter import (
     AbstractParameter as AbstractParameter,
     Bounded as Bounded,

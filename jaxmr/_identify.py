@@ -239,11 +239,16 @@ def _describe_null(vector, names, threshold=0.03) -> str:
     return " ".join(terms)
 
 
-def _statistics(free, static, data, integrator, residual_fn):
+@eqx.filter_jit
+def _residual_and_jacobian(free, static, data, integrator):
+    residual = lambda f: _residuals(f, static, data, integrator)
+    return residual(free), jax.jacfwd(residual)(free)
+
+
+def _statistics(free, static, data, integrator):
     """Standard errors, correlations and identifiability at the optimum."""
-    jac_fn = eqx.filter_jit(jax.jacfwd(residual_fn))
-    r = np.asarray(eqx.filter_jit(residual_fn)(free))
-    jac_tree = jac_fn(free)
+    r, jac_tree = _residual_and_jacobian(free, static, data, integrator)
+    r = np.asarray(r)
     J_raw = np.concatenate(
         [
             np.reshape(np.asarray(j), (r.shape[0], -1))
@@ -341,26 +346,56 @@ def fit(
         raise ValueError("nothing to fit: every parameter of `model` is Fixed.")
     start_frees = _starts(free, static, starts, spread, key)
 
-    def residual_fn(f):
-        return _residuals(f, static, data, integrator)
-
     if solver is None:
         solver = optx.LevenbergMarquardt(rtol=rtol, atol=atol)
-    args = (static, data, integrator)
+    best_y, best_loss, history, steps, reasons = _iterate(
+        solver,
+        start_frees,
+        (static, data, integrator),
+        None,
+        max_steps,
+        patience,
+        ftol,
+        _progress_printer(progress),
+    )
+    best = int(np.argmin(best_loss))
+    free_best = jax.tree.map(lambda a: a[best], best_y)
+    return _result(
+        free_best,
+        static,
+        data,
+        integrator,
+        float(best_loss[best]),
+        tuple(history),
+        steps,
+        reasons[best],
+        identifiability_threshold,
+    )
 
-    report = _progress_printer(progress)
-    ys = start_frees
-    dynamic, static_state = eqx.partition(_lm_init(solver, ys, args), eqx.is_array)
-    n_starts = jax.tree.leaves(ys)[0].shape[0]
-    best_loss = np.full(n_starts, np.inf)
+
+def _iterate(solver, ys, args, data_axis, max_steps, patience, ftol, report):
+    """Levenberg–Marquardt on a batch of problems, stepped from Python.
+
+    Axis 0 of `ys` is the batch (starts, or independent problems when `data_axis` is
+    0 and the data in `args` are batched too). Keeps each member's best parameters,
+    stops each on its own convergence or stall, and stops all on an exception.
+    Returns (best ys, best losses, history of the batch's best loss, steps, reasons).
+    """
+    dynamic, static_state = eqx.partition(
+        _lm_init(solver, ys, args, data_axis), eqx.is_array
+    )
+    n = jax.tree.leaves(ys)[0].shape[0]
+    best_loss = np.full(n, np.inf)
     best_y = ys
-    history, last_improvement = [], np.zeros(n_starts, dtype=int)
-    reference = np.full(n_starts, np.inf)
-    reason, k = f"reached max_steps = {max_steps}", 0
+    history, last_improvement = [], np.zeros(n, dtype=int)
+    reference = np.full(n, np.inf)
+    converged = np.zeros(n, dtype=bool)
+    stalled = np.zeros(n, dtype=bool)
+    failure, k = None, 0
     try:
         for k in range(1, max_steps + 1):
             ys, dynamic, loss, terminate = _lm_step(
-                solver, ys, dynamic, static_state, args
+                solver, ys, dynamic, static_state, args, data_axis
             )
             loss = np.asarray(loss)
             # The first step only evaluates the start (its loss is that of the start).
@@ -378,35 +413,28 @@ def fit(
             last_improvement = np.where(improved, k, last_improvement)
             history.append(float(np.min(best_loss)))
             report(k, float(np.min(best_loss)))
-            stalled = (k - last_improvement) >= patience
-            done = np.asarray(terminate) | stalled
-            if np.all(done):
-                if np.all(np.asarray(terminate)):
-                    reason = "converged (Levenberg–Marquardt's tolerance met)"
-                else:
-                    reason = (
-                        f"stalled: no relative improvement above {ftol:g} in "
-                        f"{patience} steps (the noise floor)"
-                    )
+            converged |= np.asarray(terminate)
+            stalled |= (k - last_improvement) >= patience
+            if np.all(converged | stalled):
                 break
     except KeyboardInterrupt:
-        reason = f"interrupted at step {k}; the best parameters so far are kept"
+        failure = f"interrupted at step {k}; the best parameters so far are kept"
     except Exception as e:  # a runtime error of the simulation
-        reason = f"failed at step {k}: {type(e).__name__}: {e}; best parameters kept"
-    best = int(np.argmin(best_loss))
-    free_best = jax.tree.map(lambda a: a[best], best_y)
-    return _result(
-        free_best,
-        static,
-        data,
-        integrator,
-        residual_fn,
-        float(best_loss[best]),
-        tuple(history),
-        k,
-        reason,
-        identifiability_threshold,
-    )
+        failure = f"failed at step {k}: {type(e).__name__}: {e}; best parameters kept"
+    reasons = []
+    for j in range(n):
+        if failure is not None:
+            reasons.append(failure)
+        elif converged[j]:
+            reasons.append("converged (Levenberg–Marquardt's tolerance met)")
+        elif stalled[j]:
+            reasons.append(
+                f"stalled: no relative improvement above {ftol:g} in {patience} "
+                "steps (the noise floor)"
+            )
+        else:
+            reasons.append(f"reached max_steps = {max_steps}")
+    return best_y, best_loss, history, k, reasons
 
 
 def _lm_fn(y, args):
@@ -441,23 +469,24 @@ _LM_OPTIONS = {"jac": "fwd"}
 # compared by identity): only its arrays cross the jit boundary, with the static part
 # from `_lm_init` passed unchanged each step, so the compiled step is reused.
 @eqx.filter_jit
-def _lm_init(solver, ys, args):
-    def one(y):
+def _lm_init(solver, ys, args, data_axis):
+    def one(y, args):
         f_struct = jax.eval_shape(lambda: _lm_fn(y, args)[0])
         return solver.init(_lm_fn, y, args, _LM_OPTIONS, f_struct, None, frozenset())
 
-    return eqx.filter_vmap(one)(ys)
+    return eqx.filter_vmap(one, in_axes=(0, (None, data_axis, None)))(ys, args)
 
 
 @eqx.filter_jit
-def _lm_step(solver, ys, dynamic, static_state, args):
-    def one(y, dyn):
+def _lm_step(solver, ys, dynamic, static_state, args, data_axis):
+    def one(y, dyn, args):
         state = eqx.combine(dyn, static_state)
         y, state, _ = solver.step(_lm_fn, y, args, _LM_OPTIONS, state, frozenset())
         loss = 0.5 * jnp.sum(state.f_info.residual**2)
         return y, eqx.filter(state, eqx.is_array), loss, state.terminate
 
-    return eqx.filter_vmap(one)(ys, dynamic)
+    in_axes = (0, 0, (None, data_axis, None))
+    return eqx.filter_vmap(one, in_axes=in_axes)(ys, dynamic, args)
 
 
 def _starts(free, static, starts, spread, key):
@@ -499,12 +528,15 @@ def _progress_printer(progress):
     return report
 
 
+_simulate_data_jit = eqx.filter_jit(_simulate_data)
+
+
 def _result(
-    free, static, data, integrator, residual_fn, loss, history, steps, reason, threshold
+    free, static, data, integrator, loss, history, steps, reason, threshold
 ) -> FitResult:
     constrained = eqx.combine(free, static)
     model = unwrap(constrained)
-    force = np.asarray(eqx.filter_jit(_simulate_data)(model, data, integrator))
+    force = np.asarray(_simulate_data_jit(model, data, integrator))
     measured, mask = np.asarray(data.force), np.asarray(data.mask)
     rmse, nrmse = [], []
     for k in range(measured.shape[0]):
@@ -512,9 +544,7 @@ def _result(
         err = force[k][keep] - measured[k][keep]
         rmse.append(float(np.sqrt(np.mean(err**2))))
         nrmse.append(rmse[-1] / float(np.std(measured[k][keep])))
-    values, std, corr, sv, Vt, _ = _statistics(
-        free, static, data, integrator, residual_fn
-    )
+    values, std, corr, sv, Vt, _ = _statistics(free, static, data, integrator)
     names = _parameter_names(free)
     unidentified = []
     for j in range(len(sv)):
@@ -544,3 +574,93 @@ def _result(
         reason=reason,
         converged=converged and not unidentified,
     )
+
+
+def fit_each(
+    model: AbstractHysteresis | Damper,
+    experiments: Sequence,
+    *,
+    integrator: AbstractIntegrator | None = None,
+    weighting: str = "nrmse",
+    max_steps: int = 200,
+    patience: int = 8,
+    ftol: float = 1e-6,
+    rtol: float = 1e-8,
+    atol: float = 1e-10,
+    progress: bool | Callable = True,
+    identifiability_threshold: float = 1e-7,
+    solver: optx.AbstractLeastSquaresSolver | None = None,
+    shard: bool = True,
+) -> list[FitResult]:
+    """Fit `model` to each experiment separately, all in one batched solve.
+
+    The independent problems (one per experiment: e.g. one run per specimen or per
+    test condition) run as one vmapped Levenberg–Marquardt loop; each stops on its own
+    and keeps its own best parameters. With several local devices and `shard=True` the
+    batch is split across them with `jax.sharding` (a `NamedSharding` over a 1-D mesh of
+    `jax.local_devices()`) when the number of experiments divides evenly; XLA then runs
+    the shards in parallel.
+
+    Several hosts: start every process with `jax.distributed.initialize()` and build
+    the mesh over `jax.devices()` (all hosts' devices) in your own script, placing each
+    host's share of the experiments with `jax.make_array_from_process_local_data`; the
+    same jitted step then runs across hosts. jaxmr itself never schedules work.
+
+    **Arguments:** as `fit` (no `starts`), plus `shard`.
+
+    **Returns:** one `FitResult` per experiment, in order.
+    """
+    experiments = list(experiments)
+    data = stack_experiments(experiments, weighting)
+    if integrator is None:
+        steps = np.diff(np.asarray(data.t), axis=1)
+        integrator = FixedStep(substeps=max(1, int(np.ceil(steps.max() / 5e-4))))
+    integrator = _for_forward_mode(integrator)
+    free, static = eqx.partition(model, free_filter(model))
+    if not jax.tree.leaves(free):
+        raise ValueError("nothing to fit: every parameter of `model` is Fixed.")
+    n = len(experiments)
+    # One experiment per problem: axis 0 indexes problems, axis 1 the (single) run.
+    arrays, data_static = eqx.partition(data, eqx.is_array)
+    batched = eqx.combine(jax.tree.map(lambda a: a[:, None], arrays), data_static)
+    ys = jax.tree.map(lambda a: jnp.broadcast_to(a, (n,) + a.shape), free)
+    devices = jax.local_devices()
+    if shard and len(devices) > 1 and n % len(devices) == 0:
+        mesh = jax.sharding.Mesh(np.array(devices), ("batch",))
+        sharding = jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec("batch"))
+        ys = jax.device_put(ys, sharding)
+        batched = eqx.combine(
+            jax.device_put(eqx.filter(batched, eqx.is_array), sharding), data_static
+        )
+    if solver is None:
+        solver = optx.LevenbergMarquardt(rtol=rtol, atol=atol)
+    best_y, best_loss, history, steps, reasons = _iterate(
+        solver,
+        ys,
+        (static, batched, integrator),
+        0,
+        max_steps,
+        patience,
+        ftol,
+        _progress_printer(progress),
+    )
+    results = []
+    for p in range(n):
+        data_p = eqx.combine(
+            jax.tree.map(lambda a, p=p: a[p : p + 1], arrays), data_static
+        )
+        data_p = dataclasses.replace(data_p, names=(data.names[p],))
+        results.append(
+            _result(
+                jax.tree.map(lambda a, p=p: a[p], best_y),
+                static,
+                data_p,
+                integrator,
+                float(best_loss[p]),
+                tuple(history),
+                steps,
+                reasons[p],
+                identifiability_threshold,
+            )
+        )
+    return results
