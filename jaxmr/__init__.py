@@ -45,11 +45,21 @@ from ._solution import RESULTS as RESULTS, Solution as Solution
 __version__ = "0.1.0"
 from ._analysis import energy_per_cycle as energy_per_cycle
 from ._identify import FitResult as FitResult, fit as fit, fit_each as fit_each
+from ._magnetic import (
+    AISI_12L14_MAJOR_LOOP as AISI_12L14_MAJOR_LOOP,
+    BinghamDisc as BinghamDisc,
+    HodgdonMaterial as HodgdonMaterial,
+    MagneticStage as MagneticStage,
+    aisi_12l14 as aisi_12l14,
+    mr_brake_actuator as mr_brake_actuator,
+    mrb_107_3 as mrb_107_3,
+)
 from ._parameter import (
     AbstractParameter as AbstractParameter,
     Bounded as Bounded,
     Fixed as Fixed,
     Positive as Positive,
+    fit_only as fit_only,
 )
 from ._presets import (
     PRESETS as PRESETS,
@@ -59,6 +69,7 @@ from ._presets import (
     sas_brake_dahl as sas_brake_dahl,
     spencer_1997 as spencer_1997,
 )
+from ._ramp import Ramp as Ramp
 from ._serialize import (
     load_model as load_model,
     model_from_dict as model_from_dict,

@@ -351,7 +351,7 @@ def fit(
     best_y, best_loss, history, steps, reasons = _iterate(
         solver,
         start_frees,
-        (static, data, integrator),
+        (_residuals, static, data, integrator),
         None,
         max_steps,
         patience,
@@ -438,7 +438,9 @@ def _iterate(solver, ys, args, data_axis, max_steps, patience, ftol, report):
 
 
 def _lm_fn(y, args):
-    static, data, integrator = args
+    # `residuals` is a module-level function (static under jit): the damper residual
+    # here, a system's elsewhere; the engine below is shared.
+    residuals, static, data, integrator = args
 
     # The residual carries its own materialised Jacobian: optimistix linearises the
     # residual and lineax then materialises that linearisation column by column, which
@@ -446,7 +448,7 @@ def _lm_fn(y, args):
     # pass). With this rule its linearisation is a matrix product.
     @jax.custom_jvp
     def residual(y):
-        return _residuals(y, static, data, integrator)
+        return residuals(y, static, data, integrator)
 
     @residual.defjvp
     def residual_jvp(primals, tangents):
@@ -474,7 +476,7 @@ def _lm_init(solver, ys, args, data_axis):
         f_struct = jax.eval_shape(lambda: _lm_fn(y, args)[0])
         return solver.init(_lm_fn, y, args, _LM_OPTIONS, f_struct, None, frozenset())
 
-    return eqx.filter_vmap(one, in_axes=(0, (None, data_axis, None)))(ys, args)
+    return eqx.filter_vmap(one, in_axes=(0, (None, None, data_axis, None)))(ys, args)
 
 
 @eqx.filter_jit
@@ -485,7 +487,7 @@ def _lm_step(solver, ys, dynamic, static_state, args, data_axis):
         loss = 0.5 * jnp.sum(state.f_info.residual**2)
         return y, eqx.filter(state, eqx.is_array), loss, state.terminate
 
-    in_axes = (0, 0, (None, data_axis, None))
+    in_axes = (0, 0, (None, None, data_axis, None))
     return eqx.filter_vmap(one, in_axes=in_axes)(ys, dynamic, args)
 
 
@@ -637,7 +639,7 @@ def fit_each(
     best_y, best_loss, history, steps, reasons = _iterate(
         solver,
         ys,
-        (static, batched, integrator),
+        (_residuals, static, batched, integrator),
         0,
         max_steps,
         patience,

@@ -103,3 +103,34 @@ def free_filter(tree):
         return eqx.is_inexact_array(x)
 
     return jax.tree.map(spec, tree, is_leaf=lambda x: isinstance(x, Fixed))
+
+
+def fit_only(model, where):
+    """`model` with every parameter wrapped in `Fixed` except those `where` selects.
+
+    **Arguments:**
+
+    - `model`: any jaxmr model (a `Damper`, its magnetic stage, laws, ...).
+    - `where`: a function returning the parameters to leave free, as for
+      `equinox.tree_at`, e.g. `lambda m: (m.dynamics.coil_constant, m.hysteresis.c0)`.
+      A selected parameter may already be `Positive` or `Bounded`.
+    """
+
+    def select(m):
+        chosen = where(m)
+        return tuple(chosen) if isinstance(chosen, (tuple, list)) else (chosen,)
+
+    spec = jax.tree.map(lambda _: False, model, is_leaf=is_parameter)
+    count = len(select(model))
+    spec = eqx.tree_at(select, spec, replace=(True,) * count)
+
+    def wrap(free, sub):
+        if free:
+            return sub
+        return jax.tree.map(
+            lambda x: Fixed(x) if eqx.is_inexact_array(x) else x,
+            sub,
+            is_leaf=is_parameter,
+        )
+
+    return jax.tree.map(wrap, spec, model, is_leaf=lambda x: isinstance(x, bool))

@@ -93,3 +93,13 @@ PRESETS = {
     "spencer_1997": spencer_1997,
     "review_quarter_car_damper": review_quarter_car_damper,
 }
+
+
+def _register_magnetic():
+    # The magnetic brake lives in its own subpackage, which imports this one.
+    from ._magnetic import mrb_107_3
+
+    PRESETS["mrb_107_3"] = mrb_107_3
+
+
+_register_magnetic()

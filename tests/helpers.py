@@ -162,4 +162,12 @@ MODEL_CASES = (
         _brake_ts,
         20,
     ),
+    ModelCase(
+        "mrb_107_3_magnetic",
+        lambda: jaxmr.mrb_107_3(velocity_scale=0.05, sign_scale=1e-3),
+        lambda: jaxmr.Sine(0.5, 1.0),
+        lambda: jaxmr.Sine(0.4, 2.0, offset=0.5),
+        lambda: jnp.linspace(0.0, 1.0, 101),
+        4,
+    ),
 )

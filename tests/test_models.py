@@ -71,7 +71,7 @@ def test_jit_equals_no_jit(case):
 def test_vmap_over_parameters(case):
     device, motion, current, ts, integrator = _setup(case)
     arrays, static = eqx.partition(device, eqx.is_array)
-    scales = jnp.array([0.9, 1.0, 1.1])
+    scales = jnp.array([0.98, 1.0, 1.02])  # small: keeps every model physical
     batch = jax.vmap(lambda s: jax.tree.map(lambda a: a * s, arrays))(scales)
 
     def run(params):
