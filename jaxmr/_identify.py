@@ -344,6 +344,7 @@ def fit(
     free, static = eqx.partition(model, free_filter(model))
     if not jax.tree.leaves(free):
         raise ValueError("nothing to fit: every parameter of `model` is Fixed.")
+    _check_current_laws(model, data)
     start_frees = _starts(free, static, starts, spread, key)
 
     if solver is None:
@@ -371,6 +372,32 @@ def fit(
         reasons[best],
         identifiability_threshold,
     )
+
+
+def _check_current_laws(model, data: FitData) -> None:
+    """A current law with free slope or shape needs experiments at several currents."""
+    from ._current_law import ConstantLaw, is_law
+
+    laws = [
+        law
+        for law in jax.tree.leaves(model, is_leaf=is_law)
+        if is_law(law) and not isinstance(law, ConstantLaw)
+    ]
+    free_laws = [
+        law for law in laws if jax.tree.leaves(eqx.filter(law, free_filter(law)))
+    ]
+    if not free_laws:
+        return
+    currents = np.asarray(data.current)[np.asarray(data.mask) > 0]
+    if np.ptp(currents) <= 1e-9 * max(1.0, float(np.max(np.abs(currents)))):
+        names = sorted({type(law).__name__ for law in free_laws})
+        raise ValueError(
+            f"the model has free current laws ({', '.join(names)}) but every experiment "
+            f"is at the same current ({float(currents[0]):g}): a law's dependence on "
+            "current cannot be identified from one current. Give experiments at "
+            "several currents, or replace the laws by plain parameters (or "
+            "jaxmr.Fixed laws) for a single-current fit."
+        )
 
 
 def _iterate(solver, ys, args, data_axis, max_steps, patience, ftol, report):

@@ -186,3 +186,9 @@ def test_fit_each_shards_over_two_host_devices():
     )
     assert out.returncode == 0, out.stderr[-3000:]
     assert "sharded fit ok" in out.stdout
+
+
+def test_one_current_cannot_identify_a_current_law(synthetic):
+    _, experiments = synthetic
+    with pytest.raises(ValueError, match="same current"):
+        jaxmr.fit(_guess(fix_A=True), experiments[:1], progress=False)
