@@ -335,15 +335,7 @@ def fit(
             UserWarning,
             stacklevel=2,
         )
-    data = stack_experiments(experiments, weighting)
-    if integrator is None:
-        steps = np.diff(np.asarray(data.t), axis=1)
-        integrator = FixedStep(substeps=max(1, int(np.ceil(steps.max() / 5e-4))))
-    integrator = _for_forward_mode(integrator)
-
-    free, static = eqx.partition(model, free_filter(model))
-    if not jax.tree.leaves(free):
-        raise ValueError("nothing to fit: every parameter of `model` is Fixed.")
+    data, integrator, free, static = _setup(model, experiments, weighting, integrator)
     _check_current_laws(model, data)
     start_frees = _starts(free, static, starts, spread, key)
 
@@ -372,6 +364,20 @@ def fit(
         reasons[best],
         identifiability_threshold,
     )
+
+
+def _setup(model, experiments, weighting, integrator):
+    """Stacked data, the integrator (default: fixed steps of at most 0.5 ms, forward
+    mode) and the model split into free variables and the rest."""
+    data = stack_experiments(experiments, weighting)
+    if integrator is None:
+        steps = np.diff(np.asarray(data.t), axis=1)
+        integrator = FixedStep(substeps=max(1, int(np.ceil(steps.max() / 5e-4))))
+    integrator = _for_forward_mode(integrator)
+    free, static = eqx.partition(model, free_filter(model))
+    if not jax.tree.leaves(free):
+        raise ValueError("nothing to fit: every parameter of `model` is Fixed.")
+    return data, integrator, free, static
 
 
 def _check_current_laws(model, data: FitData) -> None:
@@ -640,14 +646,7 @@ def fit_each(
     **Returns:** one `FitResult` per experiment, in order.
     """
     experiments = list(experiments)
-    data = stack_experiments(experiments, weighting)
-    if integrator is None:
-        steps = np.diff(np.asarray(data.t), axis=1)
-        integrator = FixedStep(substeps=max(1, int(np.ceil(steps.max() / 5e-4))))
-    integrator = _for_forward_mode(integrator)
-    free, static = eqx.partition(model, free_filter(model))
-    if not jax.tree.leaves(free):
-        raise ValueError("nothing to fit: every parameter of `model` is Fixed.")
+    data, integrator, free, static = _setup(model, experiments, weighting, integrator)
     n = len(experiments)
     # One experiment per problem: axis 0 indexes problems, axis 1 the (single) run.
     arrays, data_static = eqx.partition(data, eqx.is_array)
