@@ -54,6 +54,11 @@ from ._magnetic import (
     mr_brake_actuator as mr_brake_actuator,
     mrb_107_3 as mrb_107_3,
 )
+from ._model_library import (
+    MODEL_TEMPLATES as MODEL_TEMPLATES,
+    DataScales as DataScales,
+    data_scales as data_scales,
+)
 from ._parameter import (
     AbstractParameter as AbstractParameter,
     Bounded as Bounded,
@@ -70,6 +75,16 @@ from ._presets import (
     spencer_1997 as spencer_1997,
 )
 from ._ramp import Ramp as Ramp
+from ._select import (
+    ModelScore as ModelScore,
+    Selection as Selection,
+    compare_models as compare_models,
+    holdout_split as holdout_split,
+    predict as predict,
+    predict_all as predict_all,
+    score_table as score_table,
+    select_model as select_model,
+)
 from ._serialize import (
     load_model as load_model,
     model_from_dict as model_from_dict,

@@ -1,0 +1,355 @@
+r"""Model templates: a constrained initial guess for each model family, scaled from data.
+
+`MODEL_TEMPLATES[name](experiments)` gives a model ready for `jaxmr.fit`: its free
+parameters wrapped in `Positive` (they are all physically positive, and a log-scaled
+variable makes a step a relative change; the normalised Bouc–Wen's shape σ in
+`Bounded`), the redundant or unneeded ones `Fixed`, and
+the current-dependent ones as `LinearLaw`s in the input (current [A] or voltage [V])
+when the experiments span more than one input level (with a single level a slope could
+not be identified).
+
+The initial values come from the data, by linear least squares over all samples (each
+experiment weighted by 1/std(F), as `fit` weights them) of
+$F \approx f(i)\,s + c(i)\,v + f_0$ with $f$, $c$ linear in the input and a shape
+signal $s$ in [−1, 1]:
+
+- for the Bingham template $s = \tanh(v/v_s)$, with $v_s$ the best of a few fractions
+  (1–40 %) of the velocity amplitude;
+- for the hysteretic templates $s$ is the Dahl state run along the measured
+  displacement, $dz = (\mathrm{sgn}(dx) - z)(1 - e^{-|dx|/x_s})$ from $z = 0$, with
+  the saturation displacement $x_s$ the best of a few fractions (2–40 %) of the
+  smallest displacement amplitude. A hysteretic state lags the velocity: a device
+  whose force flips well after each reversal (the SAS brake: about 0.5° after it, at
+  half the peak velocity) looks viscous to a function of the velocity, and a guess
+  from the Bingham regression started such fits far off (α at its floor, c0 at its
+  ceiling).
+
+$f$ and $c$ are clipped to physically sensible ranges of the force and velocity
+amplitudes. Each template maps them onto its parameters ($\alpha \approx f$ with the
+state scaled to saturate at ±1, $c_0 \approx c$, and the state's rate $1/x_s$).
+
+A rotary brake reads the same with angle [rad], angular velocity [rad/s] and torque
+[N·m].
+"""
+
+from collections.abc import Callable, Sequence
+from typing import NamedTuple
+
+import numpy as np
+
+from ._current_law import LinearLaw
+from ._hysteresis import (
+    AbstractHysteresis,
+    Bingham,
+    BoucWen,
+    Dahl,
+    LuGre,
+    NormalizedBoucWen,
+    Spencer,
+)
+from ._parameter import Bounded, Fixed, Positive
+
+# Candidates for the displacement over which the hysteretic state saturates, as
+# fractions of the smallest displacement amplitude (MR fluids yield within a fraction
+# of the stroke, so that the state saturates in every test).
+SATURATION_FRACTIONS = (0.02, 0.05, 0.1, 0.2, 0.4)
+# The saturation displacement is at least this many times the largest velocity times
+# `fit`'s default step (0.5 ms): the state's rate |v|/x_s then stays below 1/4 per step,
+# well inside fixed-step RK4's stability limit (2.8).
+STEPS_PER_SATURATION = 4.0
+MAX_STEP = 5e-4  # s, `fit`'s default fixed step
+# Candidates for the smooth Bingham law's velocity scale, as fractions of the velocity
+# amplitude.
+VELOCITY_SCALE_FRACTIONS = (0.01, 0.02, 0.05, 0.1, 0.2, 0.4)
+# Relative floor of a positive parameter's initial value (Positive needs > 0, and a
+# slope of a law that the data show as flat still needs a value to start from).
+FLOOR = 0.02
+
+
+class DataScales(NamedTuple):
+    """Characteristic magnitudes of a set of experiments (SI units)."""
+
+    force: float
+    """Median over the experiments of the force amplitude [N] (half the 1–99 %
+    percentile range)."""
+    displacement: float
+    """Smallest displacement amplitude [m] (half the peak-to-peak)."""
+    velocity: float
+    """Median velocity amplitude [m/s] (the 99th percentile of |v|)."""
+    velocity_scale: float
+    """$v_s$ [m/s] of the smooth Bingham law that fits the data best."""
+    current_min: float
+    """Smallest input [A or V] over all samples."""
+    current_max: float
+    """Largest input [A or V] over all samples."""
+    yield_force: tuple[float, float]
+    """$f_c$ at `current_min` and `current_max` [N], from the Bingham regression."""
+    viscous: tuple[float, float]
+    """$c_0$ at `current_min` and `current_max` [N·s/m], from the Bingham regression."""
+    saturation: float
+    """$x_s$ [m] of the Dahl-state regression that fits the data best."""
+    hysteretic_force: tuple[float, float]
+    """The force at a saturated state, at `current_min` and `current_max` [N], from the
+    Dahl-state regression."""
+    hysteretic_viscous: tuple[float, float]
+    """The viscous coefficient at `current_min` and `current_max` [N·s/m], from the
+    Dahl-state regression."""
+
+    @property
+    def varying_current(self) -> bool:
+        return self.current_max > self.current_min
+
+
+def _columns(e):
+    t = np.asarray(e.t, dtype=float)
+    x = np.asarray(e.x, dtype=float)
+    v = np.asarray(e.v, dtype=float)
+    i = np.broadcast_to(np.asarray(e.current, dtype=float), t.shape)
+    force = getattr(e, "force", None)
+    if force is None:
+        name = getattr(e, "name", "")
+        raise ValueError(
+            f"experiment {name!r} has no measured force: a template is scaled from the "
+            "force (the `F` or `T` column)."
+        )
+    return t, x, v, i, np.asarray(force, dtype=float)
+
+
+def _half_range(a) -> float:
+    lo, hi = np.percentile(a, [1.0, 99.0])
+    return 0.5 * float(hi - lo)
+
+
+def data_scales(experiments: Sequence) -> DataScales:
+    """The magnitudes a template scales its initial guess by (see the module docstring).
+
+    **Arguments:** `experiments`, `jaxmr.data.Experiment`s with force (or anything with
+    `t`, `x`, `v`, `current`, `force`).
+
+    **Returns:** a `DataScales`.
+    """
+    experiments = list(experiments)
+    if not experiments:
+        raise ValueError("`experiments` is empty: give at least one experiment.")
+    columns = [_columns(e) for e in experiments]
+    force = float(np.median([_half_range(c[4]) for c in columns]))
+    displacement = float(min(0.5 * np.ptp(c[1]) for c in columns))
+    velocity = float(np.median([np.percentile(np.abs(c[2]), 99.0) for c in columns]))
+    if not (force > 0 and displacement > 0 and velocity > 0):
+        raise ValueError(
+            "the experiments need a varying force and a moving displacement to scale a "
+            f"template from (force amplitude {force:g}, displacement amplitude "
+            f"{displacement:g}, velocity amplitude {velocity:g})."
+        )
+    i_all = np.concatenate([c[3] for c in columns])
+    i_min, i_max = float(np.min(i_all)), float(np.max(i_all))
+    c_scale = force / velocity
+
+    def best(signals_by_candidate):
+        fits = [
+            _regression(columns, signals, i_min, i_max)
+            for signals in signals_by_candidate
+        ]
+        k = int(np.argmin([f[2] for f in fits]))
+        f, c, _ = fits[k]
+        f = tuple(float(a) for a in np.clip(f, FLOOR * force, 3 * force))
+        c = tuple(float(a) for a in np.clip(c, 1e-3 * c_scale, c_scale))
+        return k, f, c
+
+    # The smooth sign's velocity scale: MR devices differ (a sharp yield, or a gradual
+    # one as shear-thinning fluids give).
+    v_scales = [fraction * velocity for fraction in VELOCITY_SCALE_FRACTIONS]
+    k, yield_force, viscous = best(
+        [[np.tanh(c[2] / v_s) for c in columns] for v_s in v_scales]
+    )
+    floor = STEPS_PER_SATURATION * MAX_STEP * max(np.max(np.abs(c[2])) for c in columns)
+    saturations = sorted(
+        {
+            float(max(fraction * displacement, floor))
+            for fraction in SATURATION_FRACTIONS
+        }
+    )
+    j, hysteretic_force, hysteretic_viscous = best(
+        [[_dahl_state(c[1], x_s) for c in columns] for x_s in saturations]
+    )
+    return DataScales(
+        force=force,
+        displacement=displacement,
+        velocity=velocity,
+        current_min=i_min,
+        current_max=i_max,
+        velocity_scale=v_scales[k],
+        yield_force=yield_force,
+        viscous=viscous,
+        saturation=saturations[j],
+        hysteretic_force=hysteretic_force,
+        hysteretic_viscous=hysteretic_viscous,
+    )
+
+
+def _dahl_state(x, saturation: float) -> np.ndarray:
+    r"""The Dahl state along the samples of `x`, exact for piecewise-linear motion
+    between them: $z \to \mathrm{sgn}(dx) + (z - \mathrm{sgn}(dx)) e^{-|dx|/x_s}$."""
+    dx = np.diff(x)
+    targets = np.sign(dx).tolist()
+    decays = np.exp(-np.abs(dx) / saturation).tolist()
+    z, out = 0.0, [0.0]
+    # A linear recurrence with varying coefficients: a plain loop (its cumulative
+    # product form underflows on long records).
+    for target, decay in zip(targets, decays):
+        z = target + (z - target) * decay
+        out.append(z)
+    return np.asarray(out)
+
+
+def _regression(columns, signals, i_min, i_max):
+    """$f$ and $c$ at the smallest and largest input, and the residual, by weighted
+    linear least squares of $F = (f_a + f_b i) s + (c_a + c_b i) v + f_0$."""
+    varying = i_max > i_min
+    rows, rhs = [], []
+    for (_, _, v, i, f), s in zip(columns, signals):
+        w = 1.0 / (max(float(np.std(f)), 1e-300) * np.sqrt(len(f)))
+        # The input scaled to [0, 1], so the columns are of one magnitude.
+        u = (i - i_min) / (i_max - i_min) if varying else np.zeros_like(i)
+        features = [s, v, np.ones_like(v)]
+        if varying:
+            features += [u * s, u * v]
+        rows.append(w * np.stack(features, axis=1))
+        rhs.append(w * f)
+    matrix, target = np.concatenate(rows), np.concatenate(rhs)
+    coef, *_ = np.linalg.lstsq(matrix, target, rcond=None)
+    f_a, c_a = coef[0], coef[1]
+    f_b, c_b = (coef[3], coef[4]) if varying else (0.0, 0.0)
+    residual = float(np.sum((matrix @ coef - target) ** 2))
+    return (f_a, f_a + f_b), (c_a, c_a + c_b), residual
+
+
+def _law(at_min: float, at_max: float, scales: DataScales):
+    """A positive parameter: a `LinearLaw` through the values at the smallest and
+    largest input with positive intercept and slope, or a constant with one input
+    level."""
+    if not scales.varying_current:
+        return Positive(max(at_min, at_max))
+    span = scales.current_max - scales.current_min
+    top = max(at_min, at_max)
+    slope = max((at_max - at_min) / span, FLOOR * top / span)
+    intercept = max(at_min - slope * scales.current_min, FLOOR * top)
+    return LinearLaw(Positive(intercept), Positive(slope))
+
+
+def bingham(experiments: Sequence) -> Bingham:
+    r"""Smooth Bingham: $F = f_c(i)\tanh(v/v_s) + c_0(i) v$; $v_s$ fixed at the
+    regression's best, no offset."""
+    s = data_scales(experiments)
+    return Bingham(
+        f_c=_law(*s.yield_force, s),
+        c0=_law(*s.viscous, s),
+        f0=Fixed(0.0),
+        velocity_scale=Fixed(s.velocity_scale),
+    )
+
+
+def bouc_wen(experiments: Sequence) -> BoucWen:
+    r"""Bouc–Wen, $F = \alpha(i) z + c_0(i) v$, with $A = 1/x_s$ fixed (removing the
+    $(\alpha, A, \beta, \gamma)$ redundancy) and $\beta = \gamma = A/2$, $n = 1$ to
+    start: $z$ saturates at $\pm 1$ over $x_s$ (and after a reversal crosses zero at
+    $x_s$), so $\alpha$ starts at the hysteretic force. $k_0$, $x_0$, $f_0$ fixed at
+    0."""
+    s = data_scales(experiments)
+    A = 1.0 / s.saturation
+    return BoucWen(
+        alpha=_law(*s.hysteretic_force, s),
+        c0=_law(*s.hysteretic_viscous, s),
+        A=Fixed(A),
+        beta=Positive(0.5 * A),
+        gamma=Positive(0.5 * A),
+        n=Positive(1.0),
+        k0=Fixed(0.0),
+        x0=Fixed(0.0),
+        f0=Fixed(0.0),
+    )
+
+
+def normalized_bouc_wen(experiments: Sequence) -> NormalizedBoucWen:
+    r"""Normalised Bouc–Wen, $F = \kappa_w(i) w + c_0(i) v$, $\rho = 1/x_s$,
+    $\sigma = 1/2$ (kept in (0, 1)), $n = 1$ to start; $\kappa_x$, $x_0$, $f_0$ fixed
+    at 0. The same start as `bouc_wen`'s."""
+    s = data_scales(experiments)
+    return NormalizedBoucWen(
+        kappa_x=Fixed(0.0),
+        kappa_w=_law(*s.hysteretic_force, s),
+        c0=_law(*s.hysteretic_viscous, s),
+        rho=Positive(1.0 / s.saturation),
+        # σ in (0, 1) is β, γ ≥ 0 of `BoucWen`, the family of the `bouc_wen` template;
+        # unbounded, fits drifted to σ ~ 1e4, whose recovery rate ~2σρ|v| after a
+        # reversal is too stiff for the fixed-step integrator on faster held-out tests.
+        sigma=Bounded(0.5, 0.0, 1.0),
+        n=Positive(1.0),
+        x0=Fixed(0.0),
+        f0=Fixed(0.0),
+    )
+
+
+def dahl(experiments: Sequence) -> Dahl:
+    r"""Dahl, $F = k_x(i) v + k_w(i) z$: the Dahl-state regression itself, $\rho =
+    1/x_s$."""
+    s = data_scales(experiments)
+    return Dahl(
+        k_x=_law(*s.hysteretic_viscous, s),
+        k_w=_law(*s.hysteretic_force, s),
+        rho=Positive(1.0 / s.saturation),
+    )
+
+
+def lugre(experiments: Sequence) -> LuGre:
+    r"""LuGre with $F_c(i)$, $F_s(i) = 1.2 F_c(i)$, $\sigma_2(i)$ laws; the bristles
+    deflect over $x_s$ ($\sigma_0 = F_c/x_s$), Stribeck velocity 10 % of the velocity
+    amplitude. The bristle damping $\sigma_1$ is fixed at 0: it acts only during the
+    bristles' micro-deflection, which force measurements of MR devices do not resolve
+    (a free $\sigma_1$ is not identified)."""
+    s = data_scales(experiments)
+    f_lo, f_hi = s.hysteretic_force
+    return LuGre(
+        sigma0=Positive(max(f_lo, f_hi) / s.saturation),
+        sigma1=Fixed(0.0),
+        sigma2=_law(*s.hysteretic_viscous, s),
+        F_c=_law(f_lo, f_hi, s),
+        F_s=_law(1.2 * f_lo, 1.2 * f_hi, s),
+        v_s=Positive(0.1 * s.velocity),
+    )
+
+
+def spencer(experiments: Sequence) -> Spencer:
+    r"""Spencer's model with $\alpha(i)$, $c_0(i)$, $c_1(i)$ linear in the input
+    (current or voltage; no input filter). $A = 1/x_s$ fixed, $\beta = \gamma = A/2$,
+    $n = 2$ to start, so $\alpha$ starts at the hysteretic force; $c_1 = 10 f /
+    v_\mathrm{amp}$ puts the low-velocity roll-off at a tenth of the velocity
+    amplitude. $k_0$, $k_1$, $x_0$ fixed at 0 (no accumulator)."""
+    s = data_scales(experiments)
+    A = 1.0 / s.saturation
+    f_lo, f_hi = s.hysteretic_force
+    rolloff = 0.1 * s.velocity
+    return Spencer(
+        alpha=_law(f_lo, f_hi, s),
+        c0=_law(*s.hysteretic_viscous, s),
+        k0=Fixed(0.0),
+        c1=_law(f_lo / rolloff, f_hi / rolloff, s),
+        k1=Fixed(0.0),
+        x0=Fixed(0.0),
+        gamma=Positive(0.5 * A),
+        beta=Positive(0.5 * A),
+        A=Fixed(A),
+        n=Positive(2.0),
+    )
+
+
+MODEL_TEMPLATES: dict[str, Callable[[Sequence], AbstractHysteresis]] = {
+    "bingham": bingham,
+    "bouc_wen": bouc_wen,
+    "normalized_bouc_wen": normalized_bouc_wen,
+    "dahl": dahl,
+    "lugre": lugre,
+    "spencer": spencer,
+}
+"""Model templates by name: `MODEL_TEMPLATES[name](experiments)` is a constrained
+initial guess for `jaxmr.fit`, scaled from the experiments."""

@@ -1,0 +1,245 @@
+"""`jaxmr fit`, `jaxmr predict` and `jaxmr report`, run in-process on small synthetic
+CSV files: a Dahl damper at three currents, one 1 Hz cycle at 250 Hz, 0.5 % noise.
+
+The fits compile once per data shape; the module fixture runs `fit --model auto`
+first, whose refit on all three files compiles the shape that `fit --model dahl` then
+reuses, to keep the file fast.
+"""
+
+import contextlib
+import csv
+import io
+import json
+
+import numpy as np
+import pytest
+
+import jaxmr
+import jaxmr.data
+from jaxmr._cli import main
+from jaxmr._model_library import MODEL_TEMPLATES
+
+CURRENTS = (0.0, 0.5, 1.0)  # A
+AMPLITUDE, FREQUENCY, RATE = 0.01, 1.0, 250.0  # m, Hz, Hz
+NOISE = 0.005  # of std(F)
+# The truth: k_x = 800 + 1500 i N·s/m, k_w = 150 + 700 i N, rho = 800 1/m.
+TRUTH = {".k_x.a": 800.0, ".k_x.b": 1500.0, ".k_w.a": 150.0, ".k_w.b": 700.0}
+RHO = 800.0
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+
+
+def dahl_under_sine(t, amplitude, frequency, k_x, k_w, rho):
+    """The Dahl model's exact response to x = X sin(2πft) from z = 0: on each
+    half-cycle of sign s, dz/dx = ρ(s - z), so z relaxes exponentially in x towards s."""
+    w = 2 * np.pi * frequency
+    x, v = amplitude * np.sin(w * t), amplitude * w * np.cos(w * t)
+    # Half-cycle 0 is t < T/4 (s = +1); the reversals are at t = (1/4 + k/2) T.
+    segment = np.floor((t * frequency - 0.25) / 0.5).astype(int) + 1
+    z = np.zeros_like(t)
+    x_start, z_start, s = 0.0, 0.0, 1.0
+    for k in range(int(segment.max()) + 1):
+        here = segment == k
+        z[here] = s - (s - z_start) * np.exp(-rho * np.abs(x[here] - x_start))
+        z_start = s - (s - z_start) * np.exp(-rho * abs(s * amplitude - x_start))
+        x_start, s = s * amplitude, -s
+    return x, v, k_x * v + k_w * z
+
+
+def _experiment(current, rng, *, force=True, rotary=False, name=None):
+    t = np.linspace(0.0, 1.0 / FREQUENCY, round(RATE / FREQUENCY) + 1)
+    if rotary:  # the SAS brake's Dahl model, ±3.5°
+        amplitude, k_x, k_w, rho = (
+            np.deg2rad(3.5),
+            0.001 + 0.001 * current,
+            5.0 + 1.5 * current,
+            5.0,
+        )
+    else:
+        amplitude, rho = AMPLITUDE, RHO
+        k_x = TRUTH[".k_x.a"] + TRUTH[".k_x.b"] * current
+        k_w = TRUTH[".k_w.a"] + TRUTH[".k_w.b"] * current
+    x, v, f = dahl_under_sine(t, amplitude, FREQUENCY, k_x, k_w, rho)
+    if force:
+        f = f + NOISE * np.std(f) * rng.standard_normal(f.shape)
+    return jaxmr.data.Experiment(
+        t,
+        x,
+        v,
+        current,
+        f if force else None,
+        name=name or f"dahl_{current:g}A",
+        rotary=rotary,
+    )
+
+
+def _run(argv):
+    stdout = io.StringIO()
+    with contextlib.redirect_stdout(stdout):
+        status = main([str(a) for a in argv])
+    return status, stdout.getvalue()
+
+
+def _nrmse(predicted, measured):
+    return np.sqrt(np.mean((predicted - measured) ** 2)) / np.std(measured)
+
+
+@pytest.fixture(scope="module")
+def files(tmp_path_factory):
+    directory = tmp_path_factory.mktemp("data")
+    rng = np.random.default_rng(0)
+    paths = []
+    for current in CURRENTS:
+        path = directory / f"dahl_{current:g}A.csv"
+        jaxmr.data.write_csv(_experiment(current, rng), path)
+        paths.append(path)
+    return paths
+
+
+@pytest.fixture(scope="module")
+def auto(files, tmp_path_factory):
+    out = tmp_path_factory.mktemp("auto") / "auto.json"
+    status, stdout = _run(
+        ["fit", "--model", "auto", "--candidates", "bingham,dahl", "--out", out, *files]
+    )
+    return status, out, stdout
+
+
+@pytest.fixture(scope="module")
+def fitted(files, auto, tmp_path_factory):
+    out = tmp_path_factory.mktemp("fit") / "params.json"
+    status, stdout = _run(["fit", "--model", "dahl", "--out", out, *files])
+    return status, out, stdout
+
+
+def test_auto_selects_dahl(auto):
+    status, out, stdout = auto
+    assert status == 0
+    data = json.loads(out.read_text())
+    report = data["report"]
+    assert report["template"] == "dahl"
+    ranking = report["selection"]["ranking"]
+    assert [r["template"] for r in ranking] == ["dahl", "bingham"]
+    assert ranking[0]["median_test_nrmse"] < 0.02 < ranking[1]["median_test_nrmse"]
+    assert report["selection"]["holdout"].endswith(": dahl_0.5A")
+    assert isinstance(jaxmr.load_model(out), jaxmr.Dahl)
+    assert "rank  model" in stdout and "dahl: fitting on 2 experiment(s)" in stdout
+
+
+def test_fit_writes_model_and_report(fitted, files):
+    status, out, stdout = fitted
+    assert status == 0
+    assert f"wrote {out}" in stdout and "NRMSE per experiment" in stdout
+    model = jaxmr.load_model(out)
+    assert isinstance(model, jaxmr.Dahl)
+    report = json.loads(out.read_text())["report"]
+    assert report["template"] == "dahl" and report["files"] == [str(f) for f in files]
+    assert report["converged"] and not report["unidentified"]
+    assert report["reason"]
+    # At the noise floor: NRMSE ≈ 0.005 in every file.
+    for row in report["per_file"]:
+        assert row["nrmse"] < 2 * NOISE, row
+    # The parameters with their standard errors: within 5 standard errors of the truth.
+    parameters = {p["name"]: p for p in report["parameters"]}
+    assert set(parameters) == set(TRUTH) | {".rho"}
+    for name, value in (TRUTH | {".rho": RHO}).items():
+        p = parameters[name]
+        assert abs(p["value"] - value) < 5 * p["std_error"] + 1e-3 * value, p
+
+
+def test_predict(fitted, files, tmp_path):
+    _, params, _ = fitted
+    out = tmp_path / "pred.csv"
+    status, stdout = _run(["predict", params, files[1], "--out", out])
+    assert status == 0 and f"wrote {out}" in stdout and "NRMSE" in stdout
+    header = [
+        line for line in out.read_text().splitlines() if not line.startswith("#")
+    ][0]
+    assert header == "t,x,v,i,F"
+    predicted, measured = jaxmr.data.read_csv(out), jaxmr.data.read_csv(files[1])
+    for key in ("t", "x", "v", "current"):
+        np.testing.assert_array_equal(getattr(predicted, key), getattr(measured, key))
+    assert _nrmse(np.asarray(predicted.force), np.asarray(measured.force)) < 2 * NOISE
+
+
+def test_predict_rotary_without_force(tmp_path):
+    """A brake (theta, omega, i; no torque column): the output names the torque T."""
+    params = tmp_path / "brake.json"
+    jaxmr.save_model(jaxmr.sas_brake_dahl(), params)
+    data = tmp_path / "brake.csv"
+    truth = _experiment(0.5, None, force=False, rotary=True, name="brake")
+    jaxmr.data.write_csv(truth, data)
+    out = tmp_path / "pred.csv"
+    status, _ = _run(["predict", params, data, "--out", out])
+    assert status == 0
+    predicted = jaxmr.data.read_csv(out)
+    assert predicted.rotary and predicted.name == "brake"
+    _, _, exact = dahl_under_sine(
+        np.asarray(truth.t), np.deg2rad(3.5), FREQUENCY, 0.0015, 5.75, 5.0
+    )
+    # RK4 at 0.5 ms against the exact solution.
+    np.testing.assert_allclose(predicted.force, exact, atol=1e-6 * np.ptp(exact))
+
+
+def test_report(fitted, files, tmp_path):
+    import matplotlib.image
+
+    _, params, _ = fitted
+    out = tmp_path / "report"
+    status, stdout = _run(["report", params, *files, "--out", out])
+    assert status == 0
+    for f in files:
+        image_path = out / f"{f.stem}.png"
+        assert image_path.read_bytes().startswith(PNG_SIGNATURE)
+        assert np.ptp(matplotlib.image.imread(image_path)) > 0
+    with open(out / "report.csv", newline="") as f:
+        rows = list(csv.DictReader(f))
+    assert [r["experiment"] for r in rows] == [f.stem for f in files]
+    assert all(float(r["nrmse"]) < 2 * NOISE for r in rows)
+    markdown = (out / "report.md").read_text()
+    assert "| .k_w.b |" in markdown and "Fit: converged" in markdown
+    assert markdown.count("| dahl_") == 3
+    assert "Median NRMSE" in stdout
+
+
+def _error(argv, capsys) -> str:
+    assert main([str(a) for a in argv]) == 1
+    return capsys.readouterr().err
+
+
+def test_errors(files, tmp_path, capsys):
+    out = tmp_path / "p.json"
+    err = _error(["fit", "--model", "spring", "--out", out, *files], capsys)
+    assert "unknown model 'spring'" in err
+    for name in MODEL_TEMPLATES:
+        assert name in err
+    err = _error(
+        ["fit", "--model", "auto", "--candidates", "dahl,spring", "--out", out, *files],
+        capsys,
+    )
+    assert "'spring'" in err
+    missing = tmp_path / "missing.csv"
+    err = _error(["fit", "--model", "dahl", "--out", out, missing], capsys)
+    assert f"{missing}: no such file" in err
+    bad = tmp_path / "bad.csv"
+    bad.write_text("time,x,i,F\n0,0,0,0\n")
+    err = _error(["fit", "--model", "dahl", "--out", out, bad], capsys)
+    # The data layer's message, with its hint.
+    assert "jaxmr fit: error:" in err and "'time' (did you mean 't'?)" in err
+    no_force = tmp_path / "no_force.csv"
+    jaxmr.data.write_csv(_experiment(0.0, None, force=False), no_force)
+    err = _error(["fit", "--model", "dahl", "--out", out, no_force], capsys)
+    assert "no measured force (column `F`)" in err
+    err = _error(
+        ["fit", "--model", "dahl", "--out", tmp_path / "no" / "p.json", *files], capsys
+    )
+    assert "does not exist" in err
+    assert not out.exists()
+    err = _error(
+        ["predict", tmp_path / "none.json", files[0], "--out", tmp_path / "x.csv"],
+        capsys,
+    )
+    assert "none.json: no such file" in err
+    not_json = tmp_path / "not.json"
+    not_json.write_text("{")
+    err = _error(["report", not_json, *files, "--out", tmp_path / "r"], capsys)
+    assert "not a JSON parameter file" in err
