@@ -91,3 +91,21 @@ from ._serialize import (
     model_to_dict as model_to_dict,
     save_model as save_model,
 )
+from ._closed_loop import (
+    SystemSolution as SystemSolution,
+    dissipated_work as dissipated_work,
+    simulate_system as simulate_system,
+)
+from ._control import (
+    AbstractController as AbstractController,
+    ConstantCurrent as ConstantCurrent,
+    DamperPlant as DamperPlant,
+)
+from ._systems import (
+    MEASUREMENT_NAMES as MEASUREMENT_NAMES,
+    AbstractSystem as AbstractSystem,
+    QuarterCar as QuarterCar,
+    SingleDegreeOfFreedom as SingleDegreeOfFreedom,
+    passenger_car as passenger_car,
+    spencer_quarter_car as spencer_quarter_car,
+)

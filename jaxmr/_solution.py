@@ -19,6 +19,12 @@ class RESULTS(dfx.RESULTS):  # pyright: ignore[reportGeneralTypeIssues]
     )
 
 
+    command_out_of_range = (
+        "The controller commanded a current outside [0, i_max]: clip its output (the "
+        "built-in laws do) or raise its `i_max`."
+    )
+
+
 class Solution(eqx.Module):
     """The result of `simulate` (or `sweep`: every array then has the sweep's leading
     axes).

@@ -1,0 +1,5 @@
+from .base import (
+    AbstractController as AbstractController,
+    ConstantCurrent as ConstantCurrent,
+    DamperPlant as DamperPlant,
+)

@@ -1,0 +1,102 @@
+"""The abstract semi-active controller and the damper as the controller sees it."""
+
+import abc
+
+import equinox as eqx
+import jax.numpy as jnp
+
+from .._custom_types import Array, Float, PyTree, Scalar, State
+from .._damper import Damper
+from .._misc import as_float_array, check_concrete
+
+
+class DamperPlant(eqx.Module):
+    """The damper at one control sample: its state and motion, for inverse models.
+
+    **Attributes:** `damper`, `state` (the damper's internal state), `x` [m or rad],
+    `v` [m/s or rad/s] across it.
+    """
+
+    damper: Damper
+    state: State
+    x: Scalar
+    v: Scalar
+
+    def force_at(self, command: Scalar) -> Scalar:
+        """Force [N or N·m] the damper would give now at current `command` [A], its
+        internal state held (the coil lag bypassed: the steady-state answer)."""
+        k = len(self.damper.hysteresis.state_names)
+        model = self.damper.hysteresis.at(command)
+        return model.force(self.state[:k], self.x, self.v)
+
+    def current_for_force(self, force: Scalar, i_max: Scalar) -> Scalar:
+        r"""Inverse damper model: the current [A] in $[0, I_\max]$ whose force is
+        closest to `force` [N].
+
+        Interpolates linearly between the forces at $0$ and $I_\max$ in the present
+        state: exact when the force is affine in the current at fixed state (Bingham and
+        Bouc–Wen with linear current laws, the usual MR fits), a secant approximation
+        otherwise. A force outside the reachable band is clipped to it: the semi-active
+        projection of CONTROL.md, done on the real device's band instead of an
+        idealised $[c_\min v, c_\max v]$.
+        """
+        f0 = self.force_at(jnp.zeros_like(i_max))
+        f1 = self.force_at(i_max)
+        span = f1 - f0
+        # Where the band has collapsed (v = 0 and z = 0) any current gives the same
+        # force: return 0 without a division by zero in value or gradient.
+        tiny = jnp.abs(span) < 1e-12 * (1 + jnp.abs(f0) + jnp.abs(f1))
+        ratio = (force - f0) / jnp.where(tiny, 1.0, span)
+        return i_max * jnp.clip(jnp.where(tiny, 0.0, ratio), 0.0, 1.0)
+
+
+class AbstractController(eqx.Module):
+    """A digital semi-active controller: at every sample it reads the measurements and
+    returns the commanded current [A] (or voltage [V]) in $[0, I_\\max]$.
+
+    Subclasses implement `__call__`; those with memory (a filter, the previous
+    acceleration) override `init`. Built-in laws clip their output to the current range;
+    `simulate_system` raises if a controller leaves it.
+    """
+
+    i_max: eqx.AbstractVar[Float[Array, ""]]
+
+    def init(self, measurement: dict[str, Scalar]) -> PyTree:
+        """The controller's state at the first sample (none by default)."""
+        del measurement
+        return ()
+
+    @abc.abstractmethod
+    def __call__(
+        self, measurement: dict[str, Scalar], state: PyTree, plant: DamperPlant
+    ) -> tuple[Scalar, PyTree]:
+        """The command [A] from the measurements (names in
+        `jaxmr.MEASUREMENT_NAMES`), the controller state and the damper, and the next
+        controller state."""
+
+
+class ConstantCurrent(AbstractController):
+    """A constant current [A] (`0`: passive-off; `I_max`: passive-on).
+
+    **Arguments:** `current` [A]; `i_max` [A], the current range's top (default: the
+    current itself).
+    """
+
+    current: Float[Array, ""] = eqx.field(converter=as_float_array)
+    i_max: Float[Array, ""] = eqx.field(converter=as_float_array, default=None)
+
+    def __init__(self, current, i_max=None):
+        self.current = current
+        self.i_max = current if i_max is None else i_max
+
+    def __check_init__(self):
+        check_concrete(
+            (self.current >= 0) & (self.current <= self.i_max),
+            f"ConstantCurrent: `current` must lie in [0, i_max] = [0, {self.i_max}] A, "
+            f"got {self.current}.",
+            self.current,
+            self.i_max,
+        )
+
+    def __call__(self, measurement, state, plant):
+        return self.current + 0.0 * measurement["body_position"], state
