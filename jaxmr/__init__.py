@@ -21,6 +21,7 @@ from ._hysteresis import (
     Dahl as Dahl,
     LuGre as LuGre,
     NormalizedBoucWen as NormalizedBoucWen,
+    ShearThinningSpencer as ShearThinningSpencer,
     Spencer as Spencer,
 )
 from ._integrate import (
@@ -44,7 +45,22 @@ from ._solution import RESULTS as RESULTS, Solution as Solution
 
 __version__ = "0.1.0"
 from ._analysis import energy_per_cycle as energy_per_cycle
-from ._identify import FitResult as FitResult, fit as fit, fit_each as fit_each
+from ._closed_loop import (
+    SystemSolution as SystemSolution,
+    dissipated_work as dissipated_work,
+    simulate_system as simulate_system,
+)
+from ._control import (
+    AbstractController as AbstractController,
+    ConstantCurrent as ConstantCurrent,
+    DamperPlant as DamperPlant,
+)
+from ._identify import (
+    FastLevenbergMarquardt as FastLevenbergMarquardt,
+    FitResult as FitResult,
+    fit as fit,
+    fit_each as fit_each,
+)
 from ._magnetic import (
     AISI_12L14_MAJOR_LOOP as AISI_12L14_MAJOR_LOOP,
     BinghamDisc as BinghamDisc,
@@ -74,6 +90,18 @@ from ._presets import (
     sas_brake_dahl as sas_brake_dahl,
     spencer_1997 as spencer_1997,
 )
+from ._published import (
+    UTFSM_SPENCER_PUBLISHED as UTFSM_SPENCER_PUBLISHED,
+    moving_average as moving_average,
+    nrmse as nrmse,
+    record_nrmse as record_nrmse,
+    resample as resample,
+    simulate_records as simulate_records,
+    utfsm_first_cycle as utfsm_first_cycle,
+    utfsm_fit_set as utfsm_fit_set,
+    utfsm_smoothing as utfsm_smoothing,
+    utfsm_spencer as utfsm_spencer,
+)
 from ._ramp import Ramp as Ramp
 from ._select import (
     ModelScore as ModelScore,
@@ -90,16 +118,6 @@ from ._serialize import (
     model_from_dict as model_from_dict,
     model_to_dict as model_to_dict,
     save_model as save_model,
-)
-from ._closed_loop import (
-    SystemSolution as SystemSolution,
-    dissipated_work as dissipated_work,
-    simulate_system as simulate_system,
-)
-from ._control import (
-    AbstractController as AbstractController,
-    ConstantCurrent as ConstantCurrent,
-    DamperPlant as DamperPlant,
 )
 from ._systems import (
     MEASUREMENT_NAMES as MEASUREMENT_NAMES,

@@ -9,7 +9,7 @@ from ._custom_types import Array, Float, Scalar
 from ._integrate import rk4_step
 from ._signal import AbstractSignal, as_signal
 from ._solution import RESULTS
-from ._systems.base import MEASUREMENT_NAMES, AbstractSystem
+from ._systems.base import AbstractSystem
 
 
 class SystemSolution(eqx.Module):
@@ -84,17 +84,17 @@ def _check_arguments(system, excitation, duration, dt, substeps, delay):
     return as_signal(excitation, "excitation")
 
 
-def _system_checks(system, t):
+def _system_checks(system, q0):
     checks = list(system.constraints()) + [
         (ok, message) for ok, message in system.damper.hysteresis.at(0.0).constraints()
     ]
     for ok, message in checks:
-        t = eqx.error_if(
-            t,
+        q0 = eqx.error_if(
+            q0,
             jnp.logical_not(ok),
             f"{type(system).__name__}: {message} (found while simulating).",
         )
-    return t
+    return q0
 
 
 @eqx.filter_jit
@@ -143,7 +143,6 @@ def simulate_system(
     samples = int(round(duration / dt))
     damper = system.damper
     t0 = jnp.zeros((), dtype=jnp.result_type(float))
-    t0 = _system_checks(system, t0)
     q0 = (
         system.initial_state(excitation, t0)
         if initial_state is None
@@ -154,6 +153,8 @@ def simulate_system(
             f"`initial_state` must have shape ({len(system.state_names)},) for the "
             f"states {system.state_names}, got {q0.shape}."
         )
+    # The checks guard a value the loop uses (an unused `error_if` is optimised away).
+    q0 = _system_checks(system, q0)
     nq = q0.shape[0]
     i_max = jnp.asarray(controller.i_max, dtype=t0.dtype)
 
@@ -204,7 +205,13 @@ def simulate_system(
             y,
         )
         _, s = split(y)
-        record = (measurement, command, applied, damper.effective_current(s, applied), y)
+        record = (
+            measurement,
+            command,
+            applied,
+            damper.effective_current(s, applied),
+            y,
+        )
         return (y_next, c_state, pending, applied), record
 
     sample = jax.checkpoint(sample, prevent_cse=False)

@@ -48,25 +48,53 @@ class Spencer(AbstractHysteresis):
         del v
         return jnp.stack([jnp.zeros_like(x), x])
 
-    def _y_rate(self, z, y, x, v):
-        return (self.alpha * z + self.c0 * v + self.k0 * (x - y)) / (self.c0 + self.c1)
+    def dashpots(self, v: Scalar) -> tuple[Scalar, Scalar]:
+        """$c_0$ and $c_1$ [N·s/m] at piston velocity `v` (constant here;
+        `ShearThinningSpencer` lets them thin with velocity)."""
+        del v
+        return self.c0, self.c1
 
     def rates(self, state: State, x: Scalar, v: Scalar) -> State:
-        z, y = state[0], state[1]
-        y_rate = self._y_rate(z, y, x, v)
-        z_rate = bouc_wen_rate(z, v - y_rate, self.A, self.beta, self.gamma, self.n)
-        return jnp.stack([z_rate, y_rate])
+        return spencer_rates(self, state, x, v)
 
     def force(self, state: State, x: Scalar, v: Scalar) -> Scalar:
-        z, y = state[0], state[1]
-        return self.c1 * self._y_rate(z, y, x, v) + self.k1 * (x - self.x0)
+        return spencer_force(self, state, x, v)
 
     def state_bounds(self):
-        z0 = (self.A / (self.beta + self.gamma)) ** (1 / self.n)
-        return jnp.stack([z0, jnp.full_like(z0, jnp.inf)])
+        return spencer_state_bounds(self)
 
     def constraints(self):
-        return [
+        return spencer_constraints(self)
+
+
+# Shared by every Spencer-type model (`Spencer`, `ShearThinningSpencer`), which differ
+# only in their `dashpots(v)`.
+def _y_rate(model, z, y, x, v):
+    c0, c1 = model.dashpots(v)
+    return (model.alpha * z + c0 * v + model.k0 * (x - y)) / (c0 + c1)
+
+
+def spencer_rates(model, state: State, x: Scalar, v: Scalar) -> State:
+    z, y = state[0], state[1]
+    y_rate = _y_rate(model, z, y, x, v)
+    z_rate = bouc_wen_rate(z, v - y_rate, model.A, model.beta, model.gamma, model.n)
+    return jnp.stack([z_rate, y_rate])
+
+
+def spencer_force(model, state: State, x: Scalar, v: Scalar) -> Scalar:
+    z, y = state[0], state[1]
+    _, c1 = model.dashpots(v)
+    return c1 * _y_rate(model, z, y, x, v) + model.k1 * (x - model.x0)
+
+
+def spencer_state_bounds(model):
+    # z0 is a bound only when beta + gamma > 0 (checked by the constraints).
+    z0 = (model.A / (model.beta + model.gamma)) ** (1 / model.n)
+    return jnp.stack([z0, jnp.full_like(z0, jnp.inf)])
+
+
+def spencer_constraints(self):
+    return [
             (self.n > 0, f"the exponent `n` must be > 0, got {self.n}."),
             (self.A > 0, f"`A` must be > 0, got {self.A}."),
             (self.gamma >= 0, f"`gamma` must be >= 0, got {self.gamma}."),

@@ -1,6 +1,6 @@
 """The two-degree-of-freedom quarter car (SYSTEMS.md §3)."""
 
-from typing import ClassVar, Literal
+from typing import ClassVar
 
 import equinox as eqx
 import jax.numpy as jnp
@@ -52,7 +52,7 @@ class QuarterCar(AbstractSystem):
     damper: Damper = eqx.field(converter=as_damper)
     cs: Float[Array, ""] = eqx.field(converter=as_float_array, default=0.0)
     ct: Float[Array, ""] = eqx.field(converter=as_float_array, default=0.0)
-    excitation: Literal["road", "force"] = eqx.field(static=True, default="road")
+    excitation: str = eqx.field(static=True, default="road")
     lift_off: bool = eqx.field(static=True, default=False)
     state_names: ClassVar[tuple[str, ...]] = ("zs", "vs", "zu", "vu")
 
