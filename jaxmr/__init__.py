@@ -52,8 +52,25 @@ from ._closed_loop import (
 )
 from ._control import (
     AbstractController as AbstractController,
+    AccelerationDrivenDamper as AccelerationDrivenDamper,
+    Backstepping as Backstepping,
+    ClippedOptimal as ClippedOptimal,
     ConstantCurrent as ConstantCurrent,
+    ContinuousClippedOptimal as ContinuousClippedOptimal,
+    CurrentSchedule as CurrentSchedule,
     DamperPlant as DamperPlant,
+    Groundhook as Groundhook,
+    Hybrid as Hybrid,
+    LyapunovController as LyapunovController,
+    OnOffGroundhook as OnOffGroundhook,
+    OnOffSkyhook as OnOffSkyhook,
+    PowerDrivenDamper as PowerDrivenDamper,
+    Skyhook as Skyhook,
+    lqr as lqr,
+    quarter_car_state_space as quarter_car_state_space,
+    solve_lyapunov as solve_lyapunov,
+    solve_riccati as solve_riccati,
+    with_temperature as with_temperature,
 )
 from ._identify import (
     FastLevenbergMarquardt as FastLevenbergMarquardt,
@@ -70,6 +87,20 @@ from ._magnetic import (
     mr_brake_actuator as mr_brake_actuator,
     mrb_107_3 as mrb_107_3,
 )
+from ._metrics import (
+    crest_factor as crest_factor,
+    dissipated_energy as dissipated_energy,
+    mean_current as mean_current,
+    peak as peak,
+    rms as rms,
+    rms_current as rms_current,
+    settling_time as settling_time,
+    vdv as vdv,
+    wk_response as wk_response,
+    wk_rms as wk_rms,
+    wk_state_space as wk_state_space,
+    wk_weighted as wk_weighted,
+)
 from ._model_library import (
     MODEL_TEMPLATES as MODEL_TEMPLATES,
     DataScales as DataScales,
@@ -84,6 +115,7 @@ from ._parameter import (
 )
 from ._presets import (
     PRESETS as PRESETS,
+    passenger_car_mr_damper as passenger_car_mr_damper,
     review_quarter_car_damper as review_quarter_car_damper,
     sas_brake_bingham as sas_brake_bingham,
     sas_brake_bouc_wen as sas_brake_bouc_wen,
@@ -103,6 +135,16 @@ from ._published import (
     utfsm_spencer as utfsm_spencer,
 )
 from ._ramp import Ramp as Ramp
+from ._road import (
+    Cam as Cam,
+    HaversineBump as HaversineBump,
+    Pothole as Pothole,
+    RandomRoad as RandomRoad,
+    SmoothStep as SmoothStep,
+    iso8608_psd as iso8608_psd,
+    iso8608_road as iso8608_road,
+    road_psd as road_psd,
+)
 from ._select import (
     ModelScore as ModelScore,
     Selection as Selection,
@@ -126,4 +168,11 @@ from ._systems import (
     SingleDegreeOfFreedom as SingleDegreeOfFreedom,
     passenger_car as passenger_car,
     spencer_quarter_car as spencer_quarter_car,
+)
+from ._tune import (
+    TuneResult as TuneResult,
+    comfort as comfort,
+    evaluate as evaluate,
+    random_search as random_search,
+    tune as tune,
 )

@@ -28,6 +28,7 @@ class SystemSolution(eqx.Module):
     - `states`: system state then damper state at each sample.
     - `final_state`: the state at the end, `duration` [s].
     - `result`: a `jaxmr.RESULTS` code.
+    - `dt`: the sample time [s] (a Python number, for filters that need it concrete).
     """
 
     ts: Float[Array, "*batch samples"]
@@ -39,6 +40,7 @@ class SystemSolution(eqx.Module):
     final_state: Float[Array, "*batch states"]
     result: RESULTS
     state_names: tuple[str, ...] = eqx.field(static=True)
+    dt: float = eqx.field(static=True, default=1e-3)
 
     def __getitem__(self, name: str) -> Float[Array, "*batch samples"]:
         """`solution["body_acceleration"]`: an output by name."""
@@ -238,6 +240,7 @@ def simulate_system(
         final_state=y_end,
         result=result,
         state_names=system.state_names + damper.state_names,
+        dt=float(dt),
     )
     if throw:
         solution = result.error_if(solution, result != RESULTS.successful)

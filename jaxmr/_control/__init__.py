@@ -1,5 +1,24 @@
+from .acceleration_driven import AccelerationDrivenDamper as AccelerationDrivenDamper
+from .backstepping import Backstepping as Backstepping
 from .base import (
     AbstractController as AbstractController,
     ConstantCurrent as ConstantCurrent,
     DamperPlant as DamperPlant,
 )
+from .clipped_optimal import (
+    ClippedOptimal as ClippedOptimal,
+    ContinuousClippedOptimal as ContinuousClippedOptimal,
+)
+from .groundhook import Groundhook as Groundhook, OnOffGroundhook as OnOffGroundhook
+from .hybrid import Hybrid as Hybrid
+from .lyapunov import LyapunovController as LyapunovController
+from .power_driven import PowerDrivenDamper as PowerDrivenDamper
+from .riccati import (
+    lqr as lqr,
+    solve_lyapunov as solve_lyapunov,
+    solve_riccati as solve_riccati,
+)
+from .schedule import CurrentSchedule as CurrentSchedule
+from .skyhook import OnOffSkyhook as OnOffSkyhook, Skyhook as Skyhook
+from .smooth import with_temperature as with_temperature
+from .state_space import quarter_car_state_space as quarter_car_state_space

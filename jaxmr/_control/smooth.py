@@ -1,0 +1,140 @@
+r"""Smooth relaxations shared by the semi-active laws, and `with_temperature`.
+
+Every law that switches or clips holds a `temperature` $T \ge 0$ (dimensionless).
+$T = 0$ is the hard law; $T > 0$ replaces
+
+- a switch "on if $a b \ge 0$" by $\sigma(\hat s / T)$ with the logistic $\sigma$ and the
+  *angular* switching function $\hat s = 2ab/(a^2 + b^2) = \sin 2\varphi \in [-1, 1]$,
+  $\varphi$ the angle of $(a, b)$ in its plane. Both factors are first brought to one
+  unit (each law says how), so $\hat s$ is dimensionless and blind to the signals'
+  amplitude: it measures how far the motion is from the switching surface $ab = 0$
+  (the two axes) in angle. $T = 0.1$ means the same softness for every law;
+- the clip of a desired force to the damper's reachable band (the inverse model) by a
+  soft clip of the band fraction $r = (F^* - F_0)/(F_{I_\max} - F_0)$:
+  $T\,[\mathrm{softplus}(r/T) - \mathrm{softplus}((r - 1)/T)] \in (0, 1)$.
+
+A gain that appears only inside a switching condition then has a nonzero gradient;
+evaluate with the hard law ($T = 0$).
+
+Orientation: the laws read `damper_velocity` $v$ and `damper_force` $F$ as the quarter
+car defines them, $v = \dot z_s - \dot z_u$ (body minus wheel) with the body receiving
+$-F$ (`QuarterCar`, `SingleDegreeOfFreedom`). A system that measures them the other way
+round must flip both before a velocity- or force-based law sees them.
+"""
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+
+from .._custom_types import Scalar
+from .._misc import as_float_array, check_concrete
+from .base import AbstractController, DamperPlant
+
+
+def _safe_temperature(temperature):
+    # Both branches of the `where` below are evaluated: the unused soft branch must stay
+    # finite (and so must its gradient) when the temperature is 0.
+    positive = temperature > 0
+    return positive, jnp.where(positive, temperature, 1.0)
+
+
+def angular_switch(a: Scalar, b: Scalar) -> Scalar:
+    r"""$\hat s = 2ab/(a^2 + b^2) \in [-1, 1]$ ($0$ at $a = b = 0$), with `a` and `b` in
+    one unit."""
+    den = a**2 + b**2
+    ok = den > 0
+    return jnp.where(ok, 2 * a * b / jnp.where(ok, den, 1.0), 0.0)
+
+
+def gate(
+    s: Scalar, s_hat: Scalar, temperature: Scalar, *, strict: bool = False
+) -> Scalar:
+    r"""The on/off gate: $H(s)$ (with $H(0) = 1$, or $0$ if `strict`) when the
+    temperature is 0, else $\sigma(\hat s / T)$ with `s_hat` the dimensionless
+    switching function (same sign as `s`)."""
+    positive, t = _safe_temperature(temperature)
+    hard = (s > 0) if strict else (s >= 0)
+    soft = jax.nn.sigmoid(s_hat / t)
+    return jnp.where(positive, soft, hard.astype(s_hat.dtype))
+
+
+def soft_unit_clip(r: Scalar, temperature: Scalar) -> Scalar:
+    r"""$\mathrm{clip}(r, 0, 1)$ at $T = 0$, else
+    $T\,[\mathrm{softplus}(r/T) - \mathrm{softplus}((r - 1)/T)]$, which lies in $(0, 1)$
+    and tends to the clip as $T \to 0$."""
+    positive, t = _safe_temperature(temperature)
+    soft = t * (jax.nn.softplus(r / t) - jax.nn.softplus((r - 1) / t))
+    return jnp.where(positive, soft, jnp.clip(r, 0.0, 1.0))
+
+
+def command_for_force(
+    plant: DamperPlant, force: Scalar, i_max: Scalar, temperature: Scalar
+) -> Scalar:
+    r"""The current [A] for a desired damper force `force` [N]: the inverse model
+    `plant.current_for_force` at $T = 0$ (the semi-active projection onto the damper's
+    band); for $T > 0$ the same secant inverse with `soft_unit_clip` of the band
+    fraction."""
+    hard = plant.current_for_force(force, i_max)
+    f0 = plant.force_at(jnp.zeros_like(i_max))
+    f1 = plant.force_at(i_max)
+    span = f1 - f0
+    tiny = jnp.abs(span) < 1e-12 * (1 + jnp.abs(f0) + jnp.abs(f1))
+    ratio = jnp.where(tiny, 0.0, (force - f0) / jnp.where(tiny, 1.0, span))
+    soft = i_max * soft_unit_clip(ratio, temperature)
+    positive = temperature > 0
+    return jnp.where(positive, soft, hard)
+
+
+def clip_command(command: Scalar, i_max: Scalar) -> Scalar:
+    """The last guard of every law: a command in $[0, I_\\max]$."""
+    return jnp.clip(command, 0.0, i_max)
+
+
+def check_range_and_temperature(name: str, i_max, temperature) -> None:
+    """`__check_init__` checks shared by every law."""
+    check_concrete(
+        i_max > 0,
+        f"{name}: `i_max` must be > 0 A (the top of the current range), got {i_max}.",
+        i_max,
+    )
+    check_concrete(
+        temperature >= 0,
+        f"{name}: `temperature` must be >= 0 (0: the hard law; > 0: the smooth "
+        f"relaxation for gradient tuning), got {temperature}.",
+        temperature,
+    )
+
+
+def with_temperature(controllers, temperature):
+    r"""Set the relaxation `temperature` of every controller in a pytree.
+
+    Laws without one (`ConstantCurrent`) are returned unchanged, so a whole set of
+    controllers can be softened for tuning and hardened (`temperature=0`) for the
+    evaluation.
+
+    **Arguments:**
+
+    - `controllers`: a controller or a pytree of them.
+    - `temperature`: $T \ge 0$, dimensionless: every law's switching function is an
+      angle measure in $[-1, 1]$ and every clip acts on a band fraction (this module's
+      docstring), so one value softens every law alike; 0.05–0.2 is a useful range.
+
+    **Returns:** the same pytree with `temperature` replaced.
+    """
+    value = as_float_array(temperature)
+    check_concrete(
+        value >= 0,
+        f"with_temperature: `temperature` must be >= 0, got {temperature}.",
+        value,
+    )
+
+    def set_one(node):
+        if isinstance(node, AbstractController) and hasattr(node, "temperature"):
+            shape = jnp.broadcast_shapes(value.shape, jnp.shape(node.temperature))
+            t = jnp.broadcast_to(value, shape).astype(node.temperature.dtype)
+            return eqx.tree_at(lambda c: c.temperature, node, t)
+        return node
+
+    return jax.tree.map(
+        set_one, controllers, is_leaf=lambda x: isinstance(x, AbstractController)
+    )
