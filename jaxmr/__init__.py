@@ -78,6 +78,7 @@ from ._identify import (
     fit as fit,
     fit_each as fit_each,
 )
+from ._identify_system import SystemRecord as SystemRecord, fit_system as fit_system
 from ._magnetic import (
     AISI_12L14_MAJOR_LOOP as AISI_12L14_MAJOR_LOOP,
     BinghamDisc as BinghamDisc,
@@ -168,6 +169,10 @@ from ._systems import (
     SingleDegreeOfFreedom as SingleDegreeOfFreedom,
     passenger_car as passenger_car,
     spencer_quarter_car as spencer_quarter_car,
+)
+from ._systems.oscillator import (
+    band_limited_input as band_limited_input,
+    hysteretic_benchmark_oscillator as hysteretic_benchmark_oscillator,
 )
 from ._tune import (
     TuneResult as TuneResult,

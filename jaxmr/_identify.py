@@ -207,7 +207,8 @@ class FitResult:
       (relative sensitivities), largest first.
     - `unidentified`: descriptions of parameter combinations the data do not determine
       (empty when all are identified).
-    - `rmse`, `nrmse`: per experiment [force unit] and RMSE/std(F).
+    - `rmse`, `nrmse`: per experiment [force unit] and RMSE/std(F) (from
+      `fit_system`: per record, in the output's unit, and RMSE/std(output)).
     - `experiment_names`.
     - `loss`: ½ Σ (weighted residual)²; `history`: the best loss after every step.
     - `num_steps`, `reason` (why it stopped), `converged`.
@@ -688,22 +689,34 @@ _simulate_data_jit = eqx.filter_jit(_simulate_data)
 def _result(
     free, static, data, integrator, loss, history, steps, reason, threshold
 ) -> FitResult:
-    constrained = eqx.combine(free, static)
-    model = unwrap(constrained)
+    model = unwrap(eqx.combine(free, static))
     force = np.asarray(_simulate_data_jit(model, data, integrator))
-    measured, mask = np.asarray(data.force), np.asarray(data.mask)
+    statistics = _statistics(free, static, data, integrator)
+    return _assemble_result(
+        free, static, force, data, statistics, loss, history, steps, reason, threshold
+    )
+
+
+def _assemble_result(
+    free, static, simulated, data, statistics, loss, history, steps, reason, threshold
+) -> FitResult:
+    """A `FitResult` from the best free variables, the simulated outputs (padded like
+    the data: `data.force` or `data.measured`, `data.mask`) and `_statistics`."""
+    constrained = eqx.combine(free, static)
+    measured = np.asarray(data.force if hasattr(data, "force") else data.measured)
+    mask = np.asarray(data.mask)
     rmse, nrmse = [], []
     for k in range(measured.shape[0]):
         keep = mask[k] > 0
-        err = force[k][keep] - measured[k][keep]
+        err = simulated[k][keep] - measured[k][keep]
         rmse.append(float(np.sqrt(np.mean(err**2))))
         nrmse.append(rmse[-1] / float(np.std(measured[k][keep])))
-    values, std, corr, sv, Vt, _ = _statistics(free, static, data, integrator)
+    values, std, corr, sv, Vt, _ = statistics
     names = _parameter_names(free)
     unidentified = _unidentified(sv, Vt, names, threshold)
     converged = reason.startswith(("converged", "stalled"))
     return FitResult(
-        model=model,
+        model=unwrap(constrained),
         constrained=constrained,
         names=tuple(names),
         values=values,

@@ -85,8 +85,7 @@ def _log_loss(
     substeps,
     delay,
 ):
-    values = tuple(jnp.exp(v) for v in log_values) if log_space else log_values
-    pair = eqx.tree_at(parameters, pair, values)
+    pair = eqx.tree_at(parameters, pair, _to_values(log_values, log_space))
     return _batch_loss(pair, roads, objective, duration, dt, substeps, delay)
 
 
@@ -99,6 +98,36 @@ def _set_temperature(controller, temperature):
         return controller
     value = jnp.asarray(temperature, dtype=jnp.result_type(controller.temperature))
     return eqx.tree_at(lambda c: c.temperature, controller, value)
+
+
+# The optimiser's variables u and the parameters: `space` is False (u = value), True
+# (u = log value) or a tuple of (low, high) bounds per parameter (value = exp(log low +
+# (log high - log low) sigmoid(u)), inside the bounds whatever u).
+def _to_values(us, space):
+    if space is False:
+        return tuple(us)
+    if space is True:
+        return tuple(jnp.exp(u) for u in us)
+    return tuple(
+        jnp.exp(np.log(lo) + (np.log(hi) - np.log(lo)) * jax.nn.sigmoid(u))
+        for u, (lo, hi) in zip(us, space, strict=True)
+    )
+
+
+def _from_values(values, space):
+    if space is False:
+        return tuple(values)
+    if space is True:
+        return tuple(jnp.log(v) for v in values)
+    out = []
+    for v, (lo, hi) in zip(values, space, strict=True):
+        p = (jnp.log(v) - np.log(lo)) / (np.log(hi) - np.log(lo))
+        if not np.all((np.asarray(p) > 0) & (np.asarray(p) < 1)):
+            raise ValueError(
+                f"tune: a starting value {v} lies outside its bounds ({lo}, {hi})."
+            )
+        out.append(jnp.log(p / (1 - p)))
+    return tuple(out)
 
 
 def _initial(pair, parameters, log_space=True) -> tuple:
@@ -157,6 +186,7 @@ def tune(
     substeps: int = 4,
     delay: int = 1,
     log_space: bool = True,
+    bounds: Sequence[tuple[float, float]] | None = None,
     progress: bool | Callable = True,
 ) -> TuneResult:
     r"""Tune controller gains (and passive parameters) by gradient descent through the
@@ -186,6 +216,9 @@ def tune(
     - `dt`, `substeps`, `delay`: as `simulate_system`.
     - `log_space`: optimise the logarithms (default: positive parameters, relative
       steps); `False` optimises the values themselves (e.g. `CurrentSchedule.logits`).
+    - `bounds`: optional `(low, high)` per parameter (positive), e.g. an on-current
+      within the damper's range or a blend in (0, 1]: the parameter is then mapped
+      from an unbounded variable through a sigmoid in log space.
     - `progress`: print a line per step (True), nothing (False), or a callable
       `progress(step, loss)`.
 
@@ -195,11 +228,15 @@ def tune(
     where = _as_tuple_where(parameters)
     hard = controller
     pair = (system, _set_temperature(controller, temperature))
-    initial_values = _initial(pair, where, log_space)
-    log_values = (
-        tuple(jnp.log(v) for v in initial_values) if log_space else initial_values
-    )
-    args = (log_space, where, roads, objective, duration, dt, substeps, delay)
+    space = log_space
+    if bounds is not None:
+        if not log_space:
+            raise ValueError("tune: `bounds` need `log_space=True`.")
+        space = tuple((float(lo), float(hi)) for lo, hi in bounds)
+        if any(not 0 < lo < hi for lo, hi in space):
+            raise ValueError(f"tune: `bounds` must be 0 < low < high, got {bounds}.")
+    log_values = _from_values(_initial(pair, where, log_space), space)
+    args = (space, where, roads, objective, duration, dt, substeps, delay)
     report = _printer(progress)
     m = tuple(jnp.zeros_like(v) for v in log_values)
     s = tuple(jnp.zeros_like(v) for v in log_values)
@@ -234,7 +271,7 @@ def tune(
             )
     except KeyboardInterrupt:
         reason = f"interrupted at step {len(history) + 1}; the best parameters are kept"
-    values = tuple(jnp.exp(v) for v in best) if log_space else best
+    values = _to_values(best, space)
     tuned_system, tuned = eqx.tree_at(where, (system, hard), values)
     return TuneResult(
         system=tuned_system,
@@ -259,15 +296,16 @@ def random_search(
     simulations: int,
     objective: Callable[[SystemSolution], jax.Array] = comfort,
     spread: float = 10.0,
+    bounds: Sequence[tuple[float, float]] | None = None,
     key: jax.Array | None = None,
     dt: float = 1e-3,
     substeps: int = 4,
     delay: int = 1,
 ) -> TuneResult:
     """The derivative-free baseline for `tune`: evaluate log-uniform random parameter
-    sets within a factor `spread` of the start (the start included) on the same training
-    roads, with the hard law, until `simulations` road simulations are spent; keep the
-    best.
+    sets within a factor `spread` of the start (the start included; clipped to `bounds`
+    when given) on the same training roads, with the hard law, until `simulations`
+    road simulations are spent; keep the best.
 
     **Arguments:** as `tune`, plus `simulations` (the budget: give `tune`'s
     `TuneResult.simulations` for an equal-budget comparison), `spread`, `key`.
@@ -290,6 +328,11 @@ def random_search(
                 v + jax.random.uniform(k_, v.shape, v.dtype, -1, 1) * np.log(spread)
                 for v, k_ in zip(log0, keys)
             )
+            if bounds is not None:
+                candidate = tuple(
+                    jnp.clip(v, np.log(lo), np.log(hi))
+                    for v, (lo, hi) in zip(candidate, bounds, strict=True)
+                )
         loss = float(_loss(candidate, pair, *args))
         initial = loss if initial is None else initial
         if np.isfinite(loss) and loss < best_loss:

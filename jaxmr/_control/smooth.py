@@ -72,14 +72,23 @@ def command_for_force(
 ) -> Scalar:
     r"""The current [A] for a desired damper force `force` [N]: the inverse model
     `plant.current_for_force` at $T = 0$ (the semi-active projection onto the damper's
-    band); for $T > 0$ the same secant inverse with `soft_unit_clip` of the band
-    fraction."""
+    band); for $T > 0$ a regularised secant inverse (see the comment) with
+    `soft_unit_clip` of the band fraction."""
     hard = plant.current_for_force(force, i_max)
     f0 = plant.force_at(jnp.zeros_like(i_max))
     f1 = plant.force_at(i_max)
     span = f1 - f0
-    tiny = jnp.abs(span) < 1e-12 * (1 + jnp.abs(f0) + jnp.abs(f1))
-    ratio = jnp.where(tiny, 0.0, (force - f0) / jnp.where(tiny, 1.0, span))
+    # The hard ratio (F* - f0)/span jumps between ±inf where the band's width changes
+    # sign (after a reversal, while the hysteretic state swings through zero), so the
+    # command, and the closed loop's loss, jump with it: a rough landscape whose
+    # gradient says nothing about the trend. The relaxed ratio
+    # (F* - f0) span / (span² + (T s)²), with s the force scale |f0| + |f1| + |F*|, is
+    # the hard one wherever the band is wide compared with T s and falls smoothly to
+    # zero where it closes.
+    scale = temperature * (jnp.abs(f0) + jnp.abs(f1) + jnp.abs(force))
+    den = span**2 + scale**2
+    ok = den > 0
+    ratio = jnp.where(ok, (force - f0) * span / jnp.where(ok, den, 1.0), 0.0)
     soft = i_max * soft_unit_clip(ratio, temperature)
     positive = temperature > 0
     return jnp.where(positive, soft, hard)

@@ -1,4 +1,7 @@
-from .base import AbstractSystem as AbstractSystem, MEASUREMENT_NAMES as MEASUREMENT_NAMES
+from .base import (
+    MEASUREMENT_NAMES as MEASUREMENT_NAMES,
+    AbstractSystem as AbstractSystem,
+)
 from .quarter_car import (
     QuarterCar as QuarterCar,
     passenger_car as passenger_car,
