@@ -166,8 +166,14 @@ from ._systems import (
     MEASUREMENT_NAMES as MEASUREMENT_NAMES,
     AbstractSystem as AbstractSystem,
     QuarterCar as QuarterCar,
+    SASRig as SASRig,
     SingleDegreeOfFreedom as SingleDegreeOfFreedom,
+    decay_settling_time as decay_settling_time,
+    free_decay as free_decay,
+    inverse_dynamics as inverse_dynamics,
     passenger_car as passenger_car,
+    sas_rig as sas_rig,
+    sas_rig_brake as sas_rig_brake,
     spencer_quarter_car as spencer_quarter_car,
 )
 from ._systems.oscillator import (

@@ -25,9 +25,9 @@ class Backstepping(AbstractController):
     1 s⁻², from $\dot e_2 = -e_1 - \ldots$.)
 
     $g$ is the system's: for a quarter car's body $g = -1/m_s$ (the body receives
-    $-F$); for jaxmr's `SASRig`, whose brake acts with $+T_{MR}$ on the upper beam,
-    $g = +1/J_2$ (the source's $-1/J$ is for its opposite sign of $T_{MR}$). The law
-    itself is sign-agnostic: only $g$ carries the orientation.
+    $-F$); for jaxmr's `SASRig`, whose brake acts with $-T_{MR}$ on the upper beam
+    (its relative angle is body minus wheel arm, like the quarter car's), $g = -1/J_2$.
+    The law itself is sign-agnostic: only $g$ carries the orientation.
 
     **Arguments:**
 

@@ -7,4 +7,12 @@ from .quarter_car import (
     passenger_car as passenger_car,
     spencer_quarter_car as spencer_quarter_car,
 )
+from .sas_rig import (
+    SASRig as SASRig,
+    decay_settling_time as decay_settling_time,
+    free_decay as free_decay,
+    inverse_dynamics as inverse_dynamics,
+    sas_rig as sas_rig,
+    sas_rig_brake as sas_rig_brake,
+)
 from .sdof import SingleDegreeOfFreedom as SingleDegreeOfFreedom
