@@ -96,18 +96,19 @@ def laws(car):
     clipped = jaxmr.ClippedOptimal.design(A, B, Q, jnp.array([[1e-5]]), I_MAX)
     lyapunov = jaxmr.LyapunovController.design(A, B[:, 0], jnp.eye(4), I_MAX)
     return {
-        "skyhook": (jaxmr.Skyhook(2000.0, I_MAX), lambda p: p[1].c_sky),
-        "on/off skyhook": (jaxmr.OnOffSkyhook(0.3), lambda p: p[1].i_max),
-        "groundhook": (jaxmr.Groundhook(500.0, I_MAX), lambda p: p[1].c_gnd),
-        "hybrid": (jaxmr.Hybrid(2000.0, 0.8, I_MAX), lambda p: (p[1].gain, p[1].alpha)),
+        "skyhook": (jaxmr.Skyhook(2000.0, I_MAX), c_sky, None),
+        "on/off skyhook": (jaxmr.OnOffSkyhook(0.3), on_level, ON_BOUNDS),
+        "groundhook": (jaxmr.Groundhook(500.0, I_MAX), c_gnd, None),
+        "hybrid": (jaxmr.Hybrid(2000.0, 0.8, I_MAX), gain_blend, HYBRID_BOUNDS),
         "acceleration-driven": (
             jaxmr.AccelerationDrivenDamper(0.3),
-            lambda p: p[1].i_max,
+            on_level,
+            ON_BOUNDS,
         ),
-        "power-driven": (jaxmr.PowerDrivenDamper(car.ks, I_MAX), lambda p: p[1].ks),
-        "clipped-optimal (LQR)": (clipped, None),
-        "continuous clipped-optimal": (lqr_law, None),
-        "lyapunov": (lyapunov, None),
+        "power-driven": (jaxmr.PowerDrivenDamper(car.ks, I_MAX), pdd_gain, None),
+        "clipped-optimal (LQR)": (clipped, None, None),
+        "continuous clipped-optimal": (lqr_law, None, None),
+        "lyapunov": (lyapunov, None, None),
     }
 
 
@@ -219,19 +220,26 @@ def main():
     # Gradient against derivative-free tuning at an equal number of road simulations.
     versus = {}
     for name in ("skyhook", "hybrid"):
-        controller, where = laws(car)[name]
+        controller, where, bounds = laws(car)[name]
         grad = jaxmr.tune(
             car,
             controller,
             train,
             T,
             parameters=where,
+            bounds=bounds,
             temperature=args.temperature,
             steps=args.steps,
             progress=False,
         )
         search = jaxmr.random_search(
-            car, controller, train, T, parameters=where, simulations=grad.simulations
+            car,
+            controller,
+            train,
+            T,
+            parameters=where,
+            bounds=bounds,
+            simulations=grad.simulations,
         )
         versus[name] = {
             "simulations": grad.simulations,
