@@ -7,6 +7,7 @@ import jax.numpy as jnp
 from ._control.base import AbstractController, ConstantCurrent, DamperPlant
 from ._custom_types import Array, Float, Scalar
 from ._integrate import rk4_step
+from ._road import RandomRoad
 from ._signal import AbstractSignal, as_signal
 from ._solution import RESULTS
 from ._systems.base import AbstractSystem
@@ -99,6 +100,28 @@ def _system_checks(system, q0):
     return q0
 
 
+def _excitation_checks(excitation, q0, dt, duration):
+    # A sampled road is only as fine as its samples: coarser than the controller's
+    # sample time, the simulation would interpolate away the content it runs at; and
+    # past its end it would hold its last value.
+    if not isinstance(excitation, RandomRoad):
+        return q0
+    q0 = eqx.error_if(
+        q0,
+        excitation.dt > dt * (1 + 1e-9),
+        f"the road is sampled more coarsely than the simulation's dt = {dt} s: "
+        "generate it with `dt` at most the simulation's (e.g. "
+        "iso8608_road(..., dt=...)).",
+    )
+    end = excitation.start + (excitation.values.shape[-1] - 1) * excitation.dt
+    return eqx.error_if(
+        q0,
+        end < duration - 1e-9,
+        f"the road ends before the simulation's duration = {duration} s: generate it "
+        "at least that long.",
+    )
+
+
 @eqx.filter_jit
 def simulate_system(
     system: AbstractSystem,
@@ -157,6 +180,7 @@ def simulate_system(
         )
     # The checks guard a value the loop uses (an unused `error_if` is optimised away).
     q0 = _system_checks(system, q0)
+    q0 = _excitation_checks(excitation, q0, dt, duration)
     nq = q0.shape[0]
     i_max = jnp.asarray(controller.i_max, dtype=t0.dtype)
 

@@ -191,3 +191,13 @@ def test_inverse_damper_model_is_exact_for_an_affine_law():
     top = plant.force_at(jnp.array(1.0))
     assert float(plant.current_for_force(top * 10, jnp.array(1.0))) == 1.0
     assert float(plant.current_for_force(-top, jnp.array(1.0))) == 0.0
+
+
+def test_a_road_too_coarse_or_too_short_for_the_simulation_is_an_error():
+    key = jax.random.key(0)
+    coarse = jaxmr.iso8608_road("C", 5.0, 1.0, key, dt=2e-3)
+    with pytest.raises(Exception, match="sampled more coarsely"):
+        jaxmr.simulate_system(car(), coarse, 0.0, 0.5, dt=1e-3)
+    short = jaxmr.iso8608_road("C", 20.0, 0.2, key)
+    with pytest.raises(Exception, match="ends before"):
+        jaxmr.simulate_system(car(), short, 0.0, 0.5)
