@@ -23,9 +23,6 @@ DATA = ROOT.parent / "shared" / "data" / "boucwen_benchmark"
 FS = 750.0
 PERIOD = 8192
 SUBSTEPS = 10  # 7.5 kHz RK4: ~4e-8 m from the converged response, far below noise
-needs_data = pytest.mark.skipif(
-    not (DATA / "train.h5").exists(), reason="benchmark data not present"
-)
 
 
 def _script():
@@ -114,7 +111,6 @@ def window():
     return train.t[:n], train.y[:n], excitation, noise
 
 
-@needs_data
 def test_true_model_reproduces_the_training_record(window):
     ts, y, excitation, noise = window
     solution = jaxmr.simulate_system(
@@ -127,7 +123,6 @@ def test_true_model_reproduces_the_training_record(window):
     assert noise < 8e-6
 
 
-@needs_data
 def test_small_fit_on_the_training_record(window):
     # βγ and βδ, 2x off, from one second of the real record (noise 1.1 % of the
     # response).

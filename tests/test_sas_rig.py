@@ -291,11 +291,10 @@ def test_brake_parameters_identified_from_a_free_decay(rig, decays):
     # identified from one record (`fit_system` takes one controller for all records:
     # currents need one fit each). Noise 0.05° (about half an encoder step) on 1.5 s
     # at 1 kHz: recovery within 1 % (measured: ~0.1 %).
-    identify_system = pytest.importorskip("jaxmr._identify_system")
     truth = decays[0.2]
     n = 1500
     noise = np.deg2rad(0.05) * jax.random.normal(jax.random.key(1), (n,))
-    record = identify_system.SystemRecord(
+    record = jaxmr.SystemRecord(
         truth.ts[:n],
         truth["body_position"][:n] + noise,
         initial_state=truth.states[0, :4],
@@ -303,7 +302,7 @@ def test_brake_parameters_identified_from_a_free_decay(rig, decays):
     )
     where = lambda r: (r.damper.hysteresis.alpha.a, r.damper.hysteresis.c0.b)  # noqa: E731
     start = eqx.tree_at(where, rig, (jnp.asarray(1.1), jnp.asarray(3.6)))
-    result = identify_system.fit_system(
+    result = jaxmr.fit_system(
         jaxmr.fit_only(start, where), record, controller=constant(0.2), progress=False
     )
     assert result.converged, result.reason
