@@ -7,6 +7,7 @@ import jax.numpy as jnp
 from ._control.base import AbstractController, ConstantCurrent, DamperPlant
 from ._custom_types import Array, Float, Scalar
 from ._integrate import rk4_step
+from ._metrics import dissipated_energy
 from ._road import RandomRoad
 from ._signal import AbstractSignal, as_signal
 from ._solution import RESULTS
@@ -122,7 +123,6 @@ def _excitation_checks(excitation, q0, dt, duration):
     )
 
 
-@eqx.filter_jit
 def simulate_system(
     system: AbstractSystem,
     excitation: AbstractSignal | float,
@@ -163,8 +163,27 @@ def simulate_system(
 
     **Returns:** a `SystemSolution`.
     """
+    # Numbers become arrays before the jit boundary: a Python float current or
+    # excitation would be a static argument there, one compilation per value.
     controller = _as_controller(controller)
     excitation = _check_arguments(system, excitation, duration, dt, substeps, delay)
+    return _simulate_system(
+        system,
+        excitation,
+        controller,
+        duration,
+        dt,
+        substeps,
+        delay,
+        initial_state,
+        throw,
+    )
+
+
+@eqx.filter_jit
+def _simulate_system(
+    system, excitation, controller, duration, dt, substeps, delay, initial_state, throw
+) -> SystemSolution:
     samples = int(round(duration / dt))
     damper = system.damper
     t0 = jnp.zeros((), dtype=jnp.result_type(float))
@@ -272,7 +291,9 @@ def simulate_system(
 
 
 def dissipated_work(solution: SystemSolution) -> Scalar:
-    """$\\int F v\\,dt$ [J]: the work the damper absorbed over the run (trapezoid)."""
-    power = solution.power
-    dt = solution.ts[..., 1] - solution.ts[..., 0]
-    return dt * (jnp.sum(power, axis=-1) - 0.5 * (power[..., 0] + power[..., -1]))
+    """$\\int F v\\,dt$ [J]: the work the damper absorbed over the run (trapezoid,
+    `jaxmr.dissipated_energy` of the solution's samples)."""
+    outputs = solution.outputs
+    return dissipated_energy(
+        solution.ts, outputs["damper_force"], outputs["damper_velocity"]
+    )

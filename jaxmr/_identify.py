@@ -47,12 +47,13 @@ class FitData(eqx.Module):
     uniform: bool = eqx.field(static=True)
 
 
-def _per_experiment(value, n: int, what: str) -> np.ndarray:
-    """A non-negative duration [s] per experiment from `None`, a number or a sequence."""
+def _per_experiment(value, n: int, what: str, item: str = "experiment") -> np.ndarray:
+    """A non-negative duration [s] per experiment (or record, `item`) from `None`, a
+    number or a sequence."""
     array = np.asarray(0.0 if value is None else value, dtype=float)
     if array.ndim > 1 or (array.ndim == 1 and array.shape[0] != n):
         raise ValueError(
-            f"`{what}` must be one number or one per experiment ({n}), got shape "
+            f"`{what}` must be one number or one per {item} ({n}), got shape "
             f"{array.shape}."
         )
     array = np.broadcast_to(array, (n,))

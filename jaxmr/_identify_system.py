@@ -28,6 +28,7 @@ from ._identify import (
     _divide,
     _iterate,
     _multiply,
+    _per_experiment,
     _progress_printer,
     _statistics,
 )
@@ -129,22 +130,9 @@ class _Simulation(eqx.Module):
     delay: int = eqx.field(static=True)
 
 
-def _per_record(value, n: int, what: str) -> np.ndarray:
-    array = np.asarray(0.0 if value is None else value, dtype=float)
-    if array.ndim > 1 or (array.ndim == 1 and array.shape[0] != n):
-        raise ValueError(
-            f"`{what}` must be one number or one per record ({n}), got shape "
-            f"{array.shape}."
-        )
-    array = np.broadcast_to(array, (n,))
-    if not np.all(np.isfinite(array)) or np.any(array < 0):
-        raise ValueError(f"`{what}` must be finite and >= 0 [s], got {value!r}.")
-    return array
-
-
 def _stack_records(records, system, dt, discard) -> _SystemData:
     n_states = len(system.state_names)
-    skips = _per_record(discard, len(records), "discard")
+    skips = _per_experiment(discard, len(records), "discard", "record")
     length = max(r.ts.shape[0] for r in records)
     columns = {"measured": [], "mask": [], "weight": []}
     samples, dts, strides = [], [], []

@@ -17,6 +17,7 @@ from ._current_law import ExponentialLaw, LinearLaw, PolynomialLaw
 from ._hysteresis import Spencer
 from ._identify import _simulate_data, stack_experiments
 from ._integrate import FixedStep
+from ._signal import _hermite as _signal_hermite, _hermite_slope
 from .data import Experiment, utfsm_test_conditions
 
 MM = 1e-3  # m
@@ -113,6 +114,14 @@ def moving_average(values, t, width: float, t_end: float | None = None) -> np.nd
     )
 
 
+def _hermite_value_and_slope(s, y0, y1, d0, d1, h):
+    """The cubic Hermite piece (`jaxmr`'s `Sampled` interpolant) at the fractions `s` of
+    intervals of length `h`, end slopes `d0`, `d1` already times `h`: value and
+    derivative."""
+    value = _signal_hermite(s, y0, y1, d0, d1)
+    return value, _hermite_slope(s, y0, y1, d0, d1) / h
+
+
 def _hermite(t, x, v, r):
     """The cubic Hermite interpolant of (x, v) at `r` equal sub-steps of every sample
     interval (what `Experiment.motion()` gives), with its derivative."""
@@ -120,18 +129,7 @@ def _hermite(t, x, v, r):
     h = np.diff(t)[:, None]
     y0, y1 = x[:-1, None], x[1:, None]
     d0, d1 = v[:-1, None] * h, v[1:, None] * h
-    value = (
-        (2 * s**3 - 3 * s**2 + 1) * y0
-        + (s**3 - 2 * s**2 + s) * d0
-        + (-2 * s**3 + 3 * s**2) * y1
-        + (s**3 - s**2) * d1
-    )
-    slope = (
-        (6 * s**2 - 6 * s) * y0
-        + (3 * s**2 - 4 * s + 1) * d0
-        + (-6 * s**2 + 6 * s) * y1
-        + (3 * s**2 - 2 * s) * d1
-    ) / h
+    value, slope = _hermite_value_and_slope(s, y0, y1, d0, d1, h)
     times = t[:-1, None] + s * h
     return (
         np.append(times.ravel(), t[-1]),
@@ -269,18 +267,7 @@ def resample(experiment: Experiment, duration: float, samples: int) -> Experimen
     s = (times - t[k]) / h
     x, v = np.asarray(experiment.x, float), np.asarray(experiment.v, float)
     y0, y1, d0, d1 = x[k], x[k + 1], v[k] * h, v[k + 1] * h
-    position = (
-        (2 * s**3 - 3 * s**2 + 1) * y0
-        + (s**3 - 2 * s**2 + s) * d0
-        + (-2 * s**3 + 3 * s**2) * y1
-        + (s**3 - s**2) * d1
-    )
-    velocity = (
-        (6 * s**2 - 6 * s) * y0
-        + (3 * s**2 - 4 * s + 1) * d0
-        + (-6 * s**2 + 6 * s) * y1
-        + (3 * s**2 - 2 * s) * d1
-    ) / h
+    position, velocity = _hermite_value_and_slope(s, y0, y1, d0, d1, h)
     current = np.interp(
         times, t, np.broadcast_to(np.asarray(experiment.current), t.shape)
     )

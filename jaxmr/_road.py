@@ -22,7 +22,7 @@ from jaxtyping import PRNGKeyArray
 
 from ._custom_types import Array, ArrayLike, Float, ScalarLike
 from ._misc import as_float_array, check_concrete, default_float
-from ._signal import AbstractSignal, Sampled, _hermite
+from ._signal import AbstractSignal, Sampled, _hermite, _hermite_slope
 
 TWO_PI = 2 * jnp.pi
 
@@ -327,12 +327,7 @@ class RandomRoad(AbstractSignal):
         if self.derivatives is None:
             return jnp.where(inside, (y1 - y0) / self.dt, 0.0)
         d0, d1 = self.derivatives[k] * self.dt, self.derivatives[k + 1] * self.dt
-        slope = (
-            (6 * s**2 - 6 * s) * y0
-            + (3 * s**2 - 4 * s + 1) * d0
-            + (-6 * s**2 + 6 * s) * y1
-            + (3 * s**2 - 2 * s) * d1
-        ) / self.dt
+        slope = _hermite_slope(s, y0, y1, d0, d1) / self.dt
         return jnp.where(inside, slope, 0.0)
 
     def bounds(self):

@@ -394,12 +394,7 @@ class Sampled(AbstractSignal):
         if self.derivatives is None:
             return jnp.where(inside, (y1 - y0) / h, 0.0)
         d0, d1 = self.derivatives[k] * h, self.derivatives[k + 1] * h
-        dh00 = 6 * s**2 - 6 * s
-        dh10 = 3 * s**2 - 4 * s + 1
-        dh01 = -6 * s**2 + 6 * s
-        dh11 = 3 * s**2 - 2 * s
-        slope = (dh00 * y0 + dh10 * d0 + dh01 * y1 + dh11 * d1) / h
-        return jnp.where(inside, slope, 0.0)
+        return jnp.where(inside, _hermite_slope(s, y0, y1, d0, d1) / h, 0.0)
 
     def bounds(self):
         if self.derivatives is None:
@@ -433,3 +428,12 @@ def _hermite(s, y0, y1, d0, d1):
     h01 = -2 * s**3 + 3 * s**2
     h11 = s**3 - s**2
     return h00 * y0 + h10 * d0 + h01 * y1 + h11 * d1
+
+
+def _hermite_slope(s, y0, y1, d0, d1):
+    """d/ds of `_hermite`: divide by the interval length for the time derivative."""
+    dh00 = 6 * s**2 - 6 * s
+    dh10 = 3 * s**2 - 4 * s + 1
+    dh01 = -6 * s**2 + 6 * s
+    dh11 = 3 * s**2 - 2 * s
+    return dh00 * y0 + dh10 * d0 + dh01 * y1 + dh11 * d1

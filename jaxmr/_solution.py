@@ -18,7 +18,6 @@ class RESULTS(dfx.RESULTS):  # pyright: ignore[reportGeneralTypeIssues]
         "use more substeps or an adaptive integrator)."
     )
 
-
     command_out_of_range = (
         "The controller commanded a current outside [0, i_max]: clip its output (the "
         "built-in laws do) or raise its `i_max`."

@@ -29,6 +29,11 @@ class DamperPlant(eqx.Module):
         model = self.damper.hysteresis.at(command)
         return model.force(self.state[:k], self.x, self.v)
 
+    def band(self, i_max: Scalar) -> tuple[Scalar, Scalar]:
+        """The forces [N or N·m] at $0$ and at $I_\\max$ now: the band a semi-active
+        command can reach."""
+        return self.force_at(jnp.zeros_like(i_max)), self.force_at(i_max)
+
     def current_for_force(self, force: Scalar, i_max: Scalar) -> Scalar:
         r"""Inverse damper model: the current [A] in $[0, I_\max]$ whose force is
         closest to `force` [N].
@@ -40,14 +45,17 @@ class DamperPlant(eqx.Module):
         projection of CONTROL.md, done on the real device's band instead of an
         idealised $[c_\min v, c_\max v]$.
         """
-        f0 = self.force_at(jnp.zeros_like(i_max))
-        f1 = self.force_at(i_max)
-        span = f1 - f0
-        # Where the band has collapsed (v = 0 and z = 0) any current gives the same
-        # force: return 0 without a division by zero in value or gradient.
-        tiny = jnp.abs(span) < 1e-12 * (1 + jnp.abs(f0) + jnp.abs(f1))
-        ratio = (force - f0) / jnp.where(tiny, 1.0, span)
-        return i_max * jnp.clip(jnp.where(tiny, 0.0, ratio), 0.0, 1.0)
+        f0, f1 = self.band(i_max)
+        return i_max * jnp.clip(band_fraction(force, f0, f1), 0.0, 1.0)
+
+
+def band_fraction(force: Scalar, f0: Scalar, f1: Scalar) -> Scalar:
+    """$(F - f_0)/(f_1 - f_0)$, the position of `force` in the band $[f_0, f_1]$; 0
+    where the band has collapsed ($v = 0$ and $z = 0$: any current gives the same force),
+    without a division by zero in value or gradient."""
+    span = f1 - f0
+    tiny = jnp.abs(span) < 1e-12 * (1 + jnp.abs(f0) + jnp.abs(f1))
+    return jnp.where(tiny, 0.0, (force - f0) / jnp.where(tiny, 1.0, span))
 
 
 class AbstractController(eqx.Module):

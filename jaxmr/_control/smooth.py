@@ -28,7 +28,7 @@ import jax.numpy as jnp
 
 from .._custom_types import Scalar
 from .._misc import as_float_array, check_concrete
-from .base import AbstractController, DamperPlant
+from .base import AbstractController, DamperPlant, band_fraction
 
 
 def _safe_temperature(temperature):
@@ -74,9 +74,8 @@ def command_for_force(
     `plant.current_for_force` at $T = 0$ (the semi-active projection onto the damper's
     band); for $T > 0$ a regularised secant inverse (see the comment) with
     `soft_unit_clip` of the band fraction."""
-    hard = plant.current_for_force(force, i_max)
-    f0 = plant.force_at(jnp.zeros_like(i_max))
-    f1 = plant.force_at(i_max)
+    f0, f1 = plant.band(i_max)
+    hard = i_max * jnp.clip(band_fraction(force, f0, f1), 0.0, 1.0)
     span = f1 - f0
     # The hard ratio (F* - f0)/span jumps between ±inf where the band's width changes
     # sign (after a reversal, while the hysteretic state swings through zero), so the

@@ -95,13 +95,13 @@ def spencer_state_bounds(model):
 
 def spencer_constraints(self):
     return [
-            (self.n > 0, f"the exponent `n` must be > 0, got {self.n}."),
-            (self.A > 0, f"`A` must be > 0, got {self.A}."),
-            (self.gamma >= 0, f"`gamma` must be >= 0, got {self.gamma}."),
-            (
-                self.beta + self.gamma > 0,
-                f"`beta + gamma` must be > 0, got beta={self.beta}, gamma={self.gamma}.",
-            ),
-            (self.c0 > 0, f"`c0` must be > 0, got {self.c0}."),
-            (self.c1 > 0, f"`c1` must be > 0, got {self.c1}."),
-        ]
+        (self.n > 0, f"the exponent `n` must be > 0, got {self.n}."),
+        (self.A > 0, f"`A` must be > 0, got {self.A}."),
+        (self.gamma >= 0, f"`gamma` must be >= 0, got {self.gamma}."),
+        (
+            self.beta + self.gamma > 0,
+            f"`beta + gamma` must be > 0, got beta={self.beta}, gamma={self.gamma}.",
+        ),
+        (self.c0 > 0, f"`c0` must be > 0, got {self.c0}."),
+        (self.c1 > 0, f"`c1` must be > 0, got {self.c1}."),
+    ]
