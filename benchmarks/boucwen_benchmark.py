@@ -60,7 +60,7 @@ import scipy.optimize  # noqa: E402
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 import jaxmr  # noqa: E402
-from jaxmr._identify_system import (  # noqa: E402
+from jaxmr._identify.system import (  # noqa: E402
     SystemRecord,
     _system_residuals,
     _SystemData,
@@ -243,7 +243,7 @@ def run_fit(start, record, substeps, solver):
 def run_scipy(start, record, substeps, max_nfev):
     """scipy least_squares (trf, 2-point differences) on the same jitted residual."""
     from jaxmr._closed_loop import _as_controller
-    from jaxmr._identify_system import _Simulation, _stack_records
+    from jaxmr._identify.system import _Simulation, _stack_records
     from jaxmr._parameter import free_filter, unwrap
 
     free, static = eqx.partition(start, free_filter(start))

@@ -105,17 +105,19 @@ def run_jaxmr(experiments):
 
 
 def run_scipy(experiments, integrator, max_nfev):
-    from jaxmr._identify import _residuals, free_filter, stack_experiments
+    from jaxmr._identify.data import as_step_policy, pack
+    from jaxmr._identify.residual import residuals as _residuals
+    from jaxmr._parameter import free_filter
 
     template = model_from(START)
     free, static = eqx.partition(template, free_filter(template))
     leaves, treedef = jax.tree.flatten(free)
-    data = stack_experiments(experiments)
+    data = pack(experiments, as_step_policy(integrator))
 
     @jax.jit
     def residual(flat):
         f = jax.tree.unflatten(treedef, list(flat))
-        return _residuals(f, static, data, integrator)
+        return _residuals(f, static, data)
 
     x0 = np.array([float(v) for v in leaves])
     residual(jnp.asarray(x0)).block_until_ready()  # compile outside the timing

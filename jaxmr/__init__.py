@@ -73,12 +73,28 @@ from ._control import (
     with_temperature as with_temperature,
 )
 from ._identify import (
+    MODEL_TEMPLATES as MODEL_TEMPLATES,
+    DataScales as DataScales,
     FastLevenbergMarquardt as FastLevenbergMarquardt,
     FitResult as FitResult,
+    ModelScore as ModelScore,
+    Selection as Selection,
+    StepPolicy as StepPolicy,
+    SystemRecord as SystemRecord,
+    compare_models as compare_models,
+    data_scales as data_scales,
     fit as fit,
     fit_each as fit_each,
+    fit_system as fit_system,
+    holdout_split as holdout_split,
+    moving_average as moving_average,
+    nrmse as nrmse,
+    predict as predict,
+    predict_all as predict_all,
+    record_nrmse as record_nrmse,
+    score_table as score_table,
+    select_model as select_model,
 )
-from ._identify_system import SystemRecord as SystemRecord, fit_system as fit_system
 from ._magnetic import (
     AISI_12L14_MAJOR_LOOP as AISI_12L14_MAJOR_LOOP,
     BinghamDisc as BinghamDisc,
@@ -102,11 +118,6 @@ from ._metrics import (
     wk_state_space as wk_state_space,
     wk_weighted as wk_weighted,
 )
-from ._model_library import (
-    MODEL_TEMPLATES as MODEL_TEMPLATES,
-    DataScales as DataScales,
-    data_scales as data_scales,
-)
 from ._parameter import (
     AbstractParameter as AbstractParameter,
     Bounded as Bounded,
@@ -116,23 +127,13 @@ from ._parameter import (
 )
 from ._presets import (
     PRESETS as PRESETS,
+    UTFSM_SPENCER_PUBLISHED as UTFSM_SPENCER_PUBLISHED,
     passenger_car_mr_damper as passenger_car_mr_damper,
     review_quarter_car_damper as review_quarter_car_damper,
     sas_brake_bingham as sas_brake_bingham,
     sas_brake_bouc_wen as sas_brake_bouc_wen,
     sas_brake_dahl as sas_brake_dahl,
     spencer_1997 as spencer_1997,
-)
-from ._published import (
-    UTFSM_SPENCER_PUBLISHED as UTFSM_SPENCER_PUBLISHED,
-    moving_average as moving_average,
-    nrmse as nrmse,
-    record_nrmse as record_nrmse,
-    resample as resample,
-    simulate_records as simulate_records,
-    utfsm_first_cycle as utfsm_first_cycle,
-    utfsm_fit_set as utfsm_fit_set,
-    utfsm_smoothing as utfsm_smoothing,
     utfsm_spencer as utfsm_spencer,
 )
 from ._ramp import Ramp as Ramp
@@ -145,16 +146,6 @@ from ._road import (
     iso8608_psd as iso8608_psd,
     iso8608_road as iso8608_road,
     road_psd as road_psd,
-)
-from ._select import (
-    ModelScore as ModelScore,
-    Selection as Selection,
-    compare_models as compare_models,
-    holdout_split as holdout_split,
-    predict as predict,
-    predict_all as predict_all,
-    score_table as score_table,
-    select_model as select_model,
 )
 from ._serialize import (
     load_model as load_model,

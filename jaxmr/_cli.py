@@ -1,4 +1,4 @@
-"""The `jaxmr` command line: `jaxmr demo`, `jaxmr fit`, `jaxmr predict`, `jaxmr report`.
+"""The `jaxmr` command line: `jaxmr demo`, `fit`, `predict`, `report` and `convert`.
 
 Each subcommand is a `_add_<name>(subparsers)` that registers its arguments and a
 `_<name>(args) -> int` that runs it; `main` parses, dispatches and turns a `CLIError`
@@ -22,8 +22,15 @@ import numpy as np
 import jaxmr
 import jaxmr.data
 import jaxmr.plot  # light: it imports matplotlib only when it draws
-from jaxmr._model_library import MODEL_TEMPLATES
-from jaxmr._select import predict_all, prediction_errors, score_table, select_model
+from jaxmr._identify.score import nrmse, predict_all, rmse
+from jaxmr._identify.select import score_table, select_model
+from jaxmr._identify.templates import MODEL_TEMPLATES, input_varies_in_time
+
+# The candidates of `--model auto`: the richest structures first (their screening fits
+# decide), each behind a fitted input lag when the input varies within a file.
+AUTO_CANDIDATES = ("shear_thinning_spencer", "spencer", "bouc_wen")
+# The exit status of a command stopped by Ctrl-C (the shell's 128 + SIGINT).
+INTERRUPTED = 130
 
 
 class CLIError(Exception):
@@ -63,6 +70,7 @@ def _parser() -> argparse.ArgumentParser:
     _add_fit(subparsers)
     _add_predict(subparsers)
     _add_report(subparsers)
+    _add_convert(subparsers)
     return parser
 
 
@@ -337,21 +345,62 @@ def _add_fit(subparsers) -> None:
     )
     command.add_argument(
         "--model",
-        required=True,
+        default=AUTO,
         metavar="NAME",
-        help=f"{names}, or {AUTO}",
+        help=f"{names}, or {AUTO} (default)",
     )
     command.add_argument(
         "--out",
         required=True,
         metavar="PARAMS.json",
-        help="the parameter file to write",
+        help="the parameter file to write (never one of the input files)",
     )
     command.add_argument(
         "--candidates",
         metavar="NAMES",
-        default=",".join(MODEL_TEMPLATES),
-        help="with --model auto: the comma-separated models to choose from (default: all)",
+        default=None,
+        help=(
+            "with --model auto: the comma-separated models to choose from (default: "
+            + ", ".join(AUTO_CANDIDATES)
+            + "; their _lag variants when the input varies within a file)"
+        ),
+    )
+    command.add_argument(
+        "--holdout",
+        action="append",
+        default=None,
+        metavar="FILE",
+        help=(
+            "with --model auto: a file (one of FILE) held out to score the candidates "
+            "on; repeat for several (default: every other interior current level, or "
+            "the last third of each file when there are fewer than 3 files)"
+        ),
+    )
+    command.add_argument(
+        "--finalists",
+        type=int,
+        default=2,
+        metavar="N",
+        help="with --model auto: how many screened candidates get a full fit (default 2)",
+    )
+    command.add_argument(
+        "--smoothing",
+        default="file",
+        metavar="SECONDS",
+        help=(
+            "the width [s] of the moving average the measured force went through, "
+            "applied to the model's force too; 'file' (default): each file's "
+            "'# smoothing:' line, else 0"
+        ),
+    )
+    command.add_argument(
+        "--discard",
+        default="file",
+        metavar="SECONDS",
+        help=(
+            "the start [s] of each file left out of the error (the model still runs "
+            "through it); 'file' (default): each file's '# discard:' line, else 0"
+        ),
     )
     command.add_argument(
         "--max-steps",
@@ -371,12 +420,33 @@ def _add_fit(subparsers) -> None:
     command.set_defaults(run=_fit)
 
 
-def _fit(args: argparse.Namespace) -> int:
-    if args.model != AUTO and args.model not in MODEL_TEMPLATES:
-        raise CLIError(
-            f"unknown model {args.model!r}; choose one of "
-            f"{', '.join(MODEL_TEMPLATES)}, or {AUTO}"
-        )
+def _processing(option: str, files, key: str, flag: str):
+    """Per-file values [s] of --smoothing or --discard: a number, or 'file' (each
+    file's own comment line, else 0)."""
+    if option != "file":
+        try:
+            value = float(option)
+        except ValueError:
+            raise CLIError(
+                f"{flag}: expected a number of seconds or 'file', got {option!r}"
+            ) from None
+        if not (math.isfinite(value) and value >= 0):
+            raise CLIError(f"{flag}: must be a finite number >= 0 [s], got {option!r}")
+        return [value] * len(files)
+    values = []
+    for path in files:
+        try:
+            found = jaxmr.data.read_processing(path).get(key)
+        except ValueError as e:
+            raise CLIError(str(e)) from e
+        values.append(0.0 if found is None else float(found))
+    return values
+
+
+def _candidate_names(args, experiments) -> list[str]:
+    if args.candidates is None:
+        lag = input_varies_in_time(experiments)
+        return [f"{c}_lag" if lag else c for c in AUTO_CANDIDATES]
     candidates = [c.strip() for c in args.candidates.split(",") if c.strip()]
     unknown = [c for c in candidates if c not in MODEL_TEMPLATES]
     if unknown or not candidates:
@@ -386,18 +456,45 @@ def _fit(args: argparse.Namespace) -> int:
             if unknown
             else "--candidates names no model"
         )
-    if args.max_steps < 1 or args.starts < 1:
-        raise CLIError("--max-steps and --starts must be at least 1")
+    return candidates
+
+
+def _refuse_input_as_output(out: Path, inputs) -> None:
+    for path in inputs:
+        if Path(path).exists() and out.exists() and os.path.samefile(out, path):
+            raise CLIError(
+                f"the output {str(out)!r} is one of the input files: choose another "
+                "--out (jaxmr never writes over its inputs)"
+            )
+
+
+def _fit(args: argparse.Namespace) -> int:
+    if args.model != AUTO and args.model not in MODEL_TEMPLATES:
+        raise CLIError(
+            f"unknown model {args.model!r}; choose one of "
+            f"{', '.join(MODEL_TEMPLATES)}, or {AUTO}"
+        )
+    if args.max_steps < 1 or args.starts < 1 or args.finalists < 1:
+        raise CLIError("--max-steps, --starts and --finalists must be at least 1")
     out = Path(args.out)
     _check_writable_file(out)
+    _refuse_input_as_output(out, args.files + (args.holdout or []))
     experiments = _read_experiments(args.files, need_force=True, why="fitting")
+    smoothing = _processing(args.smoothing, args.files, "smoothing", "--smoothing")
+    discard = _processing(args.discard, args.files, "discard", "--discard")
     _, input_unit = _units(experiments[0])
     print(f"read {len(experiments)} file(s):", flush=True)
-    for path, e in zip(args.files, experiments):
+    for path, e, w, d in zip(args.files, experiments, smoothing, discard):
         i = np.asarray(e.current)
         level = f"{i[0]:g}" if e.is_constant_current else f"{i.min():g}..{i.max():g}"
+        extra = "".join(
+            [
+                f", smoothed over {w:g} s" if w else "",
+                f", first {d:g} s discarded" if d else "",
+            ]
+        )
         print(
-            f"  {path}: {len(e)} samples, {e.duration:g} s, {level} {input_unit}",
+            f"  {path}: {len(e)} samples, {e.duration:g} s, {level} {input_unit}{extra}",
             flush=True,
         )
     fit_kwargs = {"max_steps": args.max_steps}
@@ -405,44 +502,120 @@ def _fit(args: argparse.Namespace) -> int:
         fit_kwargs["starts"] = args.starts
     start = time.perf_counter()
     selection = None
-    if args.model == AUTO:
-        print(
-            f"selecting among {', '.join(candidates)} by held-out NRMSE...",
-            flush=True,
-        )
-        try:
-            selection = select_model(
-                candidates,
-                experiments,
-                log=lambda line: print(f"  {line}", flush=True),
-                **fit_kwargs,
+    try:
+        if args.model == AUTO:
+            candidates = _candidate_names(args, experiments)
+            selection = _select(
+                args, experiments, candidates, smoothing, discard, fit_kwargs
             )
-        except (RuntimeError, ValueError) as e:  # every candidate failed, or bad data
-            raise CLIError(str(e)) from e
-        print(f"({selection.holdout})")
-        print(score_table(selection.scores))
-        name, result = selection.name, selection.result
-    else:
-        name = args.model
-        try:
-            model = MODEL_TEMPLATES[name](experiments)
-        except ValueError as e:
-            raise CLIError(str(e)) from e
-        print(f"fitting {name} ({type(model).__name__})...", flush=True)
-        try:
-            result = jaxmr.fit(model, experiments, progress=True, **fit_kwargs)
-        except ValueError as e:  # data `fit` refuses, e.g. a constant force
-            raise CLIError(str(e)) from e
+            name, result = selection.name, selection.result
+        else:
+            name = args.model
+            try:
+                model = MODEL_TEMPLATES[name](experiments)
+            except ValueError as e:
+                raise CLIError(str(e)) from e
+            print(f"fitting {name}...", flush=True)
+            try:
+                result = jaxmr.fit(
+                    model,
+                    experiments,
+                    progress=True,
+                    smoothing=smoothing,
+                    discard=discard,
+                    **fit_kwargs,
+                )
+            except ValueError as e:  # data `fit` refuses, e.g. a constant force
+                raise CLIError(str(e)) from e
+    except KeyboardInterrupt:
+        print(
+            "\njaxmr fit: interrupted before any model was fitted; nothing written",
+            file=sys.stderr,
+        )
+        return INTERRUPTED
     elapsed = time.perf_counter() - start
     print(f"\n{name}: {elapsed:.1f} s")
     print(result)
     report = _fit_report(name, args.files, experiments, result, elapsed, selection)
-    try:
-        jaxmr.save_model(result.model, out, report=report)
-    except OSError as e:
-        raise CLIError(f"cannot write {str(out)!r}: {e.strerror or e}") from e
-    print(f"wrote {out}", flush=True)
+    report["smoothing_s"] = smoothing
+    report["discard_s"] = discard
+    _save_model_atomically(result.model, out, report)
+    if result.interrupted:
+        print(
+            f"jaxmr fit: interrupted; the best model so far is in {out}",
+            file=sys.stderr,
+        )
+        return INTERRUPTED
     return 0
+
+
+def _select(args, experiments, candidates, smoothing, discard, fit_kwargs):
+    log = lambda line: print(f"  {line}", flush=True)
+    kwargs = dict(fit_kwargs, finalists=args.finalists, log=log)
+    if args.holdout:
+        held = {os.path.abspath(p) for p in args.holdout}
+        unknown = held - {os.path.abspath(p) for p in args.files}
+        if unknown:
+            raise CLIError(
+                "--holdout: not among the input files: " + ", ".join(sorted(unknown))
+            )
+        keep = [os.path.abspath(p) not in held for p in args.files]
+        if all(keep) or not any(keep):
+            raise CLIError("--holdout must leave at least one file to fit on")
+        order = [k for k in range(len(keep)) if keep[k]] + [
+            k for k in range(len(keep)) if not keep[k]
+        ]
+        train = [experiments[k] for k in order if keep[k]]
+        test = [experiments[k] for k in order if not keep[k]]
+        kwargs.update(
+            discard=[discard[k] for k in order], smoothing=[smoothing[k] for k in order]
+        )
+        print(
+            f"selecting among {', '.join(candidates)} by held-out NRMSE...", flush=True
+        )
+        try:
+            selection = select_model(candidates, train, test, **kwargs)
+        except (RuntimeError, ValueError) as e:
+            raise CLIError(str(e)) from e
+    else:
+        print(
+            f"selecting among {', '.join(candidates)} by held-out NRMSE...", flush=True
+        )
+        try:
+            selection = select_model(
+                candidates, experiments, discard=discard, smoothing=smoothing, **kwargs
+            )
+        except (RuntimeError, ValueError) as e:  # every candidate failed, or bad data
+            raise CLIError(str(e)) from e
+    print(f"({selection.holdout})")
+    print(score_table(selection.scores))
+    return selection
+
+
+def _save_model_atomically(model, out: Path, report: dict) -> None:
+    """Write the parameter file through a temporary file and a rename, so that a
+    failed write never leaves half a file; if it cannot be written, the model goes to
+    a file in the temporary directory, which the message names."""
+    try:
+        with tempfile.NamedTemporaryFile(
+            "w",
+            dir=out.parent or ".",
+            prefix=f".{out.name}.",
+            suffix=".tmp",
+            delete=False,
+        ) as f:
+            temporary = Path(f.name)
+        jaxmr.save_model(model, temporary, report=report)
+        os.replace(temporary, out)
+    except OSError as e:
+        rescue = Path(tempfile.gettempdir()) / f"jaxmr-fit-{os.getpid()}.json"
+        try:
+            jaxmr.save_model(model, rescue, report=report)
+            where = f"; the model was saved to {rescue}"
+        except OSError:
+            where = ""
+        raise CLIError(f"cannot write {str(out)!r}: {e.strerror or e}{where}") from e
+    print(f"wrote {out}", flush=True)
 
 
 def _fit_report(name, files, experiments, result, elapsed, selection) -> dict:
@@ -473,6 +646,8 @@ def _fit_report(name, files, experiments, result, elapsed, selection) -> dict:
         "num_steps": int(result.num_steps),
         "loss": _json_number(result.loss),
         "unidentified": list(result.unidentified),
+        "poorly_determined": list(result.poorly_determined),
+        "interrupted": bool(result.interrupted),
         "fit_time_s": round(elapsed, 3),
     }
     if selection is not None:
@@ -485,6 +660,7 @@ def _fit_report(name, files, experiments, result, elapsed, selection) -> dict:
                     "fit_time_s": round(s.fit_time, 3),
                     "median_train_nrmse": _json_number(s.median_train_nrmse),
                     "median_test_nrmse": _json_number(s.median_test_nrmse),
+                    "stage": s.stage,
                     "error": s.error,
                 }
                 for s in selection.scores
@@ -512,7 +688,25 @@ def _add_predict(subparsers) -> None:
     command.add_argument("params", metavar="PARAMS.json", help="the fitted model")
     command.add_argument("file", metavar="FILE", help="the CSV experiment")
     command.add_argument(
-        "--out", required=True, metavar="PRED.csv", help="the CSV file to write"
+        "--out",
+        required=True,
+        metavar="PRED.csv",
+        help="the CSV file to write (never FILE itself)",
+    )
+    command.add_argument(
+        "--smoothing",
+        default="file",
+        metavar="SECONDS",
+        help=(
+            "a moving average [s] applied to the prediction, as the measured force "
+            "went through; 'file' (default): FILE's '# smoothing:' line, else 0"
+        ),
+    )
+    command.add_argument(
+        "--discard",
+        default="file",
+        metavar="SECONDS",
+        help="the start [s] left out of the printed error ('file': FILE's line, else 0)",
     )
     command.set_defaults(run=_predict)
 
@@ -520,9 +714,12 @@ def _add_predict(subparsers) -> None:
 def _predict(args: argparse.Namespace) -> int:
     out = Path(args.out)
     _check_writable_file(out)
+    _refuse_input_as_output(out, [args.file, args.params])
     model, _ = _load_model(args.params)
     (experiment,) = _read_experiments([args.file], need_force=False, why="")
-    (predicted,) = predict_all(model, [experiment])
+    (smoothing,) = _processing(args.smoothing, [args.file], "smoothing", "--smoothing")
+    (discard,) = _processing(args.discard, [args.file], "discard", "--discard")
+    (predicted,) = predict_all(model, [experiment], smoothing=smoothing)
     if not np.all(np.isfinite(predicted)):
         raise CLIError(
             f"the simulation of {args.file} diverged (non-finite force): the model's "
@@ -550,9 +747,12 @@ def _predict(args: argparse.Namespace) -> int:
     except OSError as e:
         raise CLIError(f"cannot write {str(out)!r}: {e.strerror or e}") from e
     if experiment.force is not None:
-        rmse, nrmse = prediction_errors(predicted, np.asarray(experiment.force))
+        t = np.asarray(experiment.t)
+        keep = t >= t[0] + discard
+        error = rmse(predicted, experiment.force, keep)
+        relative = nrmse(predicted, experiment.force, keep)
         force_unit, _ = _units(experiment)
-        print(f"{args.file}: RMSE {rmse:.6g} {force_unit}, NRMSE {nrmse:.4f}")
+        print(f"{args.file}: RMSE {error:.6g} {force_unit}, NRMSE {relative:.4f}")
     print(f"wrote {out}", flush=True)
     return 0
 
@@ -608,21 +808,24 @@ def _report(args: argparse.Namespace) -> int:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    predicted = predict_all(model, experiments)
+    smoothing = _processing("file", args.files, "smoothing", "--smoothing")
+    discard = _processing("file", args.files, "discard", "--discard")
+    predicted = predict_all(model, experiments, smoothing=smoothing)
     force_unit, input_unit = _units(experiments[0])
     rows = []
-    for path, e, p, figure_name in zip(
-        args.files, experiments, predicted, _figure_names(args.files)
+    for path, e, p, figure_name, d in zip(
+        args.files, experiments, predicted, _figure_names(args.files), discard
     ):
-        rmse, nrmse = prediction_errors(p, np.asarray(e.force))
+        keep = np.asarray(e.t) >= np.asarray(e.t)[0] + d
+        error, relative = rmse(p, e.force, keep), nrmse(p, e.force, keep)
         i = np.asarray(e.current)
-        rows.append((str(path), e.name, float(np.mean(i)), rmse, nrmse))
+        rows.append((str(path), e.name, float(np.mean(i)), error, relative))
         figure = jaxmr.plot.measured_vs_predicted_loops(
             e,
             p,
             title=(
-                f"{e.name}: {type(model).__name__}, NRMSE {nrmse:.4f} "
-                f"(RMSE {rmse:.4g} {force_unit})"
+                f"{e.name}: {type(model).__name__}, NRMSE {relative:.4f} "
+                f"(RMSE {error:.4g} {force_unit})"
             ),
         )
         _save(plt, figure, out / figure_name)
@@ -634,9 +837,9 @@ def _report(args: argparse.Namespace) -> int:
         writer.writerow(
             ("file", "experiment", f"mean_input_{input_unit}", "rmse", "nrmse")
         )
-        for path, name, level, rmse, nrmse in rows:
+        for path, name, level, error, relative in rows:
             writer.writerow(
-                (path, name, f"{level:.6g}", f"{rmse:.10g}", f"{nrmse:.10g}")
+                (path, name, f"{level:.6g}", f"{error:.10g}", f"{relative:.10g}")
             )
 
     _write(out / "report.csv", write_table)
@@ -675,8 +878,8 @@ def _report_markdown(params, model, rows, parameters, fit_report) -> str:
         "| file | experiment | mean input | RMSE | NRMSE |",
         "|---|---|---:|---:|---:|",
     ]
-    for path, name, level, rmse, e in rows:
-        lines.append(f"| {path} | {name} | {level:.4g} | {rmse:.4g} | {e:.4f} |")
+    for path, name, level, error, e in rows:
+        lines.append(f"| {path} | {name} | {level:.4g} | {error:.4g} | {e:.4f} |")
     lines += [
         "",
         "| parameter | value | std error |",
@@ -693,3 +896,43 @@ def _report_markdown(params, model, rows, parameters, fit_report) -> str:
 
 if __name__ == "__main__":
     sys.exit(main())
+
+
+# ---------------------------------------------------------------------------------------
+# jaxmr convert
+
+
+def _add_convert(subparsers) -> None:
+    command = subparsers.add_parser(
+        "convert",
+        help="turn a public dataset into jaxmr's canonical CSV files",
+        description=(
+            "Convert a public dataset that jaxmr's loaders know into canonical CSV "
+            "files (one per experiment, with the dataset's own smoothing and discarded "
+            "start as comment lines, which `jaxmr fit` reads): "
+            + ", ".join(jaxmr.data.DATASETS)
+            + ". Existing files are never replaced without --force."
+        ),
+    )
+    command.add_argument("dataset", choices=jaxmr.data.DATASETS, help="the dataset")
+    command.add_argument(
+        "source", metavar="SOURCE", help="the dataset's directory or file as published"
+    )
+    command.add_argument("--out", required=True, metavar="DIR", help="output directory")
+    command.add_argument(
+        "--force", action="store_true", help="replace files that already exist"
+    )
+    command.set_defaults(run=_convert)
+
+
+def _convert(args: argparse.Namespace) -> int:
+    try:
+        written = jaxmr.data.convert_dataset(
+            args.dataset, args.source, args.out, force=args.force
+        )
+    except (ValueError, FileExistsError, OSError) as e:
+        raise CLIError(str(e)) from e
+    for path in written:
+        print(f"wrote {path}")
+    print(f"{len(written)} file(s) in {args.out}")
+    return 0

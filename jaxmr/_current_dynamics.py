@@ -11,6 +11,7 @@ from typing import ClassVar
 import equinox as eqx
 import jax.numpy as jnp
 
+from ._current_law import _plain, as_parameter
 from ._custom_types import Array, Bool, Float, Scalar, State
 from ._misc import as_float_array, check_concrete
 
@@ -47,26 +48,28 @@ class FirstOrderLag(AbstractCurrentDynamics):
 
     **Arguments:**
 
-    - `rate`: $\eta$ [1/s], the inverse time constant; must be positive.
+    - `rate`: $\eta$ [1/s], the inverse time constant; must be positive. May be a
+      fitting constraint (`jaxmr.Positive(200.0)`) to identify it.
     """
 
-    rate: Float[Array, ""] = eqx.field(converter=as_float_array)
+    rate: Float[Array, ""] | eqx.Module = eqx.field(converter=as_parameter)
     state_names: ClassVar[tuple[str, ...]] = ("u",)
 
     def __check_init__(self):
         for ok, message in self.constraints():
-            check_concrete(ok, f"FirstOrderLag: {message}", self.rate)
+            check_concrete(ok, f"FirstOrderLag: {message}", _plain(self.rate))
 
     def constraints(self):
+        rate = _plain(self.rate)
         return [
             (
-                self.rate > 0,
-                f"`rate` must be positive (1/time constant in 1/s), got {self.rate}.",
+                rate > 0,
+                f"`rate` must be positive (1/time constant in 1/s), got {rate}.",
             )
         ]
 
     def initial_state(self, command: Scalar) -> State:
-        return jnp.reshape(command, (1,)).astype(self.rate.dtype)
+        return jnp.reshape(command, (1,)).astype(_plain(self.rate).dtype)
 
     def rates(self, state: State, command: Scalar) -> State:
         return -self.rate * (state - command)

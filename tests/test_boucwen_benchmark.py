@@ -12,7 +12,7 @@ import pytest
 
 import jaxmr
 from jaxmr._hysteresis.bouc_wen import bouc_wen_rate
-from jaxmr._identify_system import SystemRecord, fit_system
+from jaxmr._identify.system import SystemRecord, fit_system
 from jaxmr._systems.oscillator import (
     band_limited_input,
     hysteretic_benchmark_oscillator,

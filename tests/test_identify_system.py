@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 import jaxmr
-from jaxmr._identify_system import (
+from jaxmr._identify.system import (
     SystemRecord,
     _simulate_records,
     _Simulation,

@@ -23,9 +23,9 @@ from jaxmr import (
     ShearThinningSpencer,
     moving_average,
     record_nrmse,
-    utfsm_first_cycle,
     utfsm_spencer,
 )
+from jaxmr.data import utfsm_first_cycle
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
 UTFSM = DATA / "utfsm_mr_damper" / "sine"

@@ -5,7 +5,12 @@ An `Experiment` holds one test in SI units and turns it into the signals that
 `jaxmr.simulate` takes (`experiment.motion()`, `experiment.current_signal()`).
 """
 
-from ._csv import read_csv as read_csv, write_csv as write_csv
+from ._convert import DATASETS as DATASETS, convert_dataset as convert_dataset
+from ._csv import (
+    read_csv as read_csv,
+    read_processing as read_processing,
+    write_csv as write_csv,
+)
 from ._experiment import Experiment as Experiment
 from ._loaders import (
     BOUCWEN_BENCHMARK_FS as BOUCWEN_BENCHMARK_FS,
@@ -16,5 +21,7 @@ from ._loaders import (
     load_boucwen_benchmark_train as load_boucwen_benchmark_train,
     load_nees as load_nees,
     load_utfsm as load_utfsm,
+    utfsm_first_cycle as utfsm_first_cycle,
+    utfsm_smoothing as utfsm_smoothing,
     utfsm_test_conditions as utfsm_test_conditions,
 )

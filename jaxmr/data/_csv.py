@@ -5,6 +5,8 @@
 # name: 10mm1Hz0x5A
 # units: t [s], x [m], v [m/s], i [A], F [N]
 # velocity: measured
+# smoothing: 0.1 s
+# discard: 1.0 s
 t,x,v,i,F
 0.0,-9.3e-06,-0.001,0.5,-40.49
 ...
@@ -23,10 +25,25 @@ one sample with one number per column. Columns (names are case-sensitive):
 
 Comments of the form `# name: ...` and `# velocity: ...` set the experiment's name
 (default: the file stem) and the origin of the `v` column (default: measured).
+
+Two optional comments record how the data were processed and how to score them, both in
+seconds with the unit written out (`read_processing` reads them; `read_csv` ignores them):
+
+- `# smoothing: <width> s`: the force (and, for UTFSM, the displacement) went through a
+  centred moving average of this width, so a model's force should be smoothed the same
+  way before it is compared (the `smoothing` of `jaxmr.fit` and `jaxmr.record_nrmse`);
+- `# discard: <duration> s`: leave the first `<duration>` seconds of the record out of
+  the score (the hysteretic state is unknown there; the `discard` of the same
+  functions).
+
+Absent lines mean none (no smoothing, nothing discarded). Other comments (provenance,
+units) are free text.
 """
 
 import difflib
+import math
 import os
+import re
 from pathlib import Path
 
 import numpy as np
@@ -68,6 +85,12 @@ _ALIASES = {
     "current": "i",
     "voltage": "u",
 }
+# The processing comments: key -> what the number is (for the messages).
+_PROCESSING = {"smoothing": "width", "discard": "duration"}
+_SECONDS = re.compile(r"^(?P<number>\S+?)\s*s$")
+# The first comment line of the `t,u,y` system records that `convert_dataset` writes
+# for the Bouc–Wen benchmark (force in, displacement out): not a damper experiment.
+SYSTEM_RECORD = "# jaxmr system record"
 
 
 def _expected() -> str:
@@ -151,7 +174,8 @@ def read_csv(path: str | os.PathLike) -> Experiment:
     **Raises:** `ValueError` naming the problem: unknown or missing columns (with the
     expected names and the nearest one), both `i` and `u`, linear and rotary columns
     mixed, a row with the wrong number of cells, an unparsable or non-finite cell
-    (with its line number), time not strictly increasing, fewer than 3 rows.
+    (with its line number), time not strictly increasing, fewer than 3 rows, a
+    `# jaxmr system record` file (`convert_dataset('boucwen')`: not a damper test).
     """
     path = Path(path)
     where = str(path)
@@ -166,6 +190,13 @@ def read_csv(path: str | os.PathLike) -> Experiment:
             if not text:
                 continue
             if text.startswith("#"):
+                if header is None and text.startswith(SYSTEM_RECORD):
+                    raise ValueError(
+                        f"{where}: a system record (columns t, u, y: input force [N], "
+                        "output displacement [m]), as `convert_dataset('boucwen')` "
+                        "writes, not a damper experiment; read its columns with "
+                        "numpy.loadtxt as its header comments say."
+                    )
                 key, sep, value = text[1:].partition(":")
                 if sep and key.strip().lower() in ("name", "velocity"):
                     metadata.setdefault(key.strip().lower(), value.strip())
@@ -221,22 +252,102 @@ def read_csv(path: str | os.PathLike) -> Experiment:
     return Experiment.from_arrays(columns["t"], columns[roles["position"]], **common)
 
 
+def _seconds_text(key: str, value: float | None) -> str | None:
+    if value is None:
+        return None
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        number = math.nan
+    if not math.isfinite(number) or number < 0:
+        raise ValueError(
+            f"write_csv: `{key}` must be a finite {_PROCESSING[key]} >= 0 in seconds "
+            f"(or None to leave the line out), got {value!r}."
+        )
+    return f"# {key}: {number!r} s"
+
+
+def read_processing(path: str | os.PathLike) -> dict[str, float | None]:
+    """Read the processing comments of a canonical CSV file (see the module docstring).
+
+    **Arguments:**
+
+    - `path`: the file.
+
+    **Returns:** `{"smoothing": width, "discard": duration}`, each a float in seconds
+    read from the `# smoothing: <width> s` and `# discard: <duration> s` comment
+    lines, or None where the file has no such line.
+
+    **Raises:** `ValueError` naming the file, the line number and the expected form
+    when a value is not a finite number >= 0 followed by the unit `s`, or when the same
+    key is given twice with different values.
+    """
+    path = Path(path)
+    found: dict[str, float | None] = dict.fromkeys(_PROCESSING)
+    at: dict[str, int] = {}
+    with open(path, encoding="utf-8") as file:
+        for number, text in enumerate(file, start=1):
+            text = text.strip()
+            if not text.startswith("#"):
+                continue
+            key, sep, value = text[1:].partition(":")
+            key = key.strip().lower()
+            if not sep or key not in _PROCESSING:
+                continue
+            value = value.strip()
+            match = _SECONDS.match(value)
+            seconds = math.nan
+            if match is not None:
+                try:
+                    seconds = float(match["number"])
+                except ValueError:
+                    pass
+            if not math.isfinite(seconds) or seconds < 0:
+                what = _PROCESSING[key]
+                raise ValueError(
+                    f"{path}: line {number}: cannot read {value!r} as the {key} "
+                    f"{what}; expected `# {key}: <{what}> s`, a finite number >= 0 in "
+                    f"seconds followed by the unit s (e.g. `# {key}: 0.1 s`)."
+                )
+            if key in at and found[key] != seconds:
+                raise ValueError(
+                    f"{path}: line {number}: a second `# {key}:` line ({seconds!r} s) "
+                    f"contradicts line {at[key]} ({found[key]!r} s); keep one."
+                )
+            found[key] = seconds
+            at.setdefault(key, number)
+    return found
+
+
 def write_csv(
-    experiment: Experiment, path: str | os.PathLike, *, comment: str | None = None
+    experiment: Experiment,
+    path: str | os.PathLike,
+    *,
+    comment: str | None = None,
+    smoothing: float | None = None,
+    discard: float | None = None,
 ) -> None:
     """Write an experiment in jaxmr's canonical CSV format (see the module docstring).
 
     Numbers are written in Python's shortest exact form, so `read_csv` gives back the
     same values. The header comments state the units, the name and the velocity's
-    origin; `comment` (e.g. provenance: laboratory, date, source) is added as further
-    comment lines.
+    origin, then the processing (`smoothing`, `discard`) when given; `comment` (e.g.
+    provenance: laboratory, date, source) is added as further comment lines.
 
     **Arguments:**
 
     - `experiment`: the `Experiment`.
     - `path`: the file to write (overwritten).
     - `comment`: optional free text, one comment line per text line.
+    - `smoothing`: the width [s] of the centred moving average the force went through,
+      written as `# smoothing: <width> s`; None (default) writes no line.
+    - `discard`: the start [s] to leave out of the score, written as
+      `# discard: <duration> s`; None (default) writes no line.
+
+    `read_processing` reads both back.
     """
+    processing = [_seconds_text("smoothing", smoothing)]
+    processing.append(_seconds_text("discard", discard))
     roles = _ROTARY if experiment.rotary else _LINEAR
     input_name = "i" if experiment.drive == "current" else "u"
     names = ["t", roles["position"], roles["velocity"], input_name]
@@ -255,6 +366,7 @@ def write_csv(
         "# units: " + ", ".join(f"{n} [{_UNITS[n]}]" for n in names),
         f"# velocity: {one_line(experiment.velocity_source)}",
     ]
+    header += [line for line in processing if line is not None]
     if comment:
         header += [f"# {line}" for line in comment.splitlines()]
     header.append(",".join(names))

@@ -437,3 +437,17 @@ def load_boucwen_benchmark_input(path: str | os.PathLike) -> BoucWenBenchmarkInp
             f"{what}: `uval_{kind}` has a non-finite value at index {int(bad[0])}."
         )
     return BoucWenBenchmarkInput(np.arange(u.size) / BOUCWEN_BENCHMARK_FS, u, kind)
+
+
+def utfsm_first_cycle(experiments) -> np.ndarray:
+    """One nominal period [s] per UTFSM test (the start to discard from the error: the
+    hysteretic state is unknown there and the authors' moving average starts)."""
+    return np.array([1.0 / utfsm_test_conditions(e).frequency for e in experiments])
+
+
+def utfsm_smoothing(experiments) -> np.ndarray:
+    """The width [s] of the authors' moving average per UTFSM test: a tenth of the
+    nominal period. Both the displacement and the force went through it, so a model's
+    force is compared like with like after the same smoothing (`jaxmr.record_nrmse`'s and
+    `jaxmr.fit`'s `smoothing`); it spreads each force reversal over 36° of phase."""
+    return 0.1 * utfsm_first_cycle(experiments)

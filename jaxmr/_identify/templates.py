@@ -37,27 +37,30 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ._current_law import LinearLaw
-from ._hysteresis import (
+from .._current_dynamics import FirstOrderLag
+from .._current_law import ExponentialLaw, LinearLaw, PolynomialLaw
+from .._damper import Damper
+from .._hysteresis import (
     AbstractHysteresis,
     Bingham,
     BoucWen,
     Dahl,
     LuGre,
     NormalizedBoucWen,
+    ShearThinningSpencer,
     Spencer,
 )
-from ._parameter import Bounded, Fixed, Positive
+from .._parameter import Bounded, Fixed, Positive
+from .data import StepPolicy
 
 # Candidates for the displacement over which the hysteretic state saturates, as
 # fractions of the smallest displacement amplitude (MR fluids yield within a fraction
 # of the stroke, so that the state saturates in every test).
 SATURATION_FRACTIONS = (0.02, 0.05, 0.1, 0.2, 0.4)
-# The saturation displacement is at least this many times the largest velocity times
-# `fit`'s default step (0.5 ms): the state's rate |v|/x_s then stays below 1/4 per step,
-# well inside fixed-step RK4's stability limit (2.8).
+# The saturation displacement is at least this many times the travel of one default
+# step (`StepPolicy`): the state's rate |v|/x_s then stays below 1/4 per step, well
+# inside fixed-step RK4's stability limit (2.8).
 STEPS_PER_SATURATION = 4.0
-MAX_STEP = 5e-4  # s, `fit`'s default fixed step
 # Candidates for the smooth Bingham law's velocity scale, as fractions of the velocity
 # amplitude.
 VELOCITY_SCALE_FRACTIONS = (0.01, 0.02, 0.05, 0.1, 0.2, 0.4)
@@ -162,7 +165,11 @@ def data_scales(experiments: Sequence) -> DataScales:
     k, yield_force, viscous = best(
         [[np.tanh(c[2] / v_s) for c in columns] for v_s in v_scales]
     )
-    floor = STEPS_PER_SATURATION * MAX_STEP * max(np.max(np.abs(c[2])) for c in columns)
+    policy = StepPolicy()
+    floor = STEPS_PER_SATURATION * max(
+        policy.step(c[2], bool(getattr(e, "rotary", False))) * np.max(np.abs(c[2]))
+        for c, e in zip(columns, experiments)
+    )
     saturations = sorted(
         {
             float(max(fraction * displacement, floor))
@@ -343,13 +350,91 @@ def spencer(experiments: Sequence) -> Spencer:
     )
 
 
-MODEL_TEMPLATES: dict[str, Callable[[Sequence], AbstractHysteresis]] = {
+def _curved_law(at_min: float, at_max: float, scales: DataScales):
+    """A quadratic law through the values at the smallest and largest input, no
+    curvature to start (MR yield stress saturates with field: the fit bends it), or a
+    positive constant with one input level."""
+    if not scales.varying_current:
+        return Positive(max(at_min, at_max))
+    linear = _law(at_min, at_max, scales)
+    a, b = float(linear.a.value()), float(linear.b.value())
+    return PolynomialLaw(np.array([a, b, 0.0]))
+
+
+def _saturation_law(value: float, scales: DataScales):
+    """A positive shape parameter that may vary exponentially with the input
+    ($a e^{b i}$, $b$ = 0 to start), or a positive constant with one input level."""
+    if not scales.varying_current:
+        return Positive(value)
+    return ExponentialLaw(Positive(value), 0.0)
+
+
+def shear_thinning_spencer(experiments: Sequence) -> ShearThinningSpencer:
+    r"""Spencer's model with shear-thinning dashpots and per-current laws: $lpha(i)$
+    quadratic, $c_0(i)$, $c_1(i)$ linear, $eta(i)$, $\gamma(i)$ exponential in the
+    input (the structure of the published UTFSM model, which needed them), the
+    accumulator $k_1$ and its offset $x_0$ free, $c_0$ thinning with velocity
+    ($e_0$, halving at the velocity amplitude to start; $e_1$ = 0 fixed, see
+    `ShearThinningSpencer`). $A = 1/x_s$ and $n = 2$ fixed, $eta = \gamma = A/2$ to
+    start, $k_0$ fixed at 0; the rest as `spencer`."""
+    s = data_scales(experiments)
+    A = 1.0 / s.saturation
+    f_lo, f_hi = s.hysteretic_force
+    rolloff = 0.1 * s.velocity
+    return ShearThinningSpencer(
+        alpha=_curved_law(f_lo, f_hi, s),
+        c0=_law(*s.hysteretic_viscous, s),
+        k0=Fixed(0.0),
+        c1=_law(f_lo / rolloff, f_hi / rolloff, s),
+        k1=Positive(FLOOR * s.force / s.displacement),
+        x0=0.0,
+        gamma=_saturation_law(0.5 * A, s),
+        beta=_saturation_law(0.5 * A, s),
+        A=Fixed(A),
+        n=Fixed(2.0),
+        e0=Positive(1.0 / s.velocity),
+        e1=Fixed(0.0),
+    )
+
+
+# The coil and driver lag's rate to start from [1/s]: a time constant of 5 ms, the
+# order of MR dampers' measured response times (Spencer et al. 1997: 190 1/s).
+LAG_RATE = 200.0
+
+
+def with_lag(template: Callable[[Sequence], AbstractHysteresis]):
+    """A template whose model sees its input through a fitted first-order lag
+    (`Damper(model, FirstOrderLag(rate))`, rate free from `LAG_RATE`): for inputs
+    that vary within an experiment (the voltage of a random on/off test)."""
+
+    def lagged(experiments: Sequence) -> Damper:
+        return Damper(template(experiments), FirstOrderLag(Positive(LAG_RATE)))
+
+    lagged.__name__ = f"{template.__name__}_lag"
+    lagged.__doc__ = f"`{template.__name__}` behind a fitted first-order input lag."
+    return lagged
+
+
+def input_varies_in_time(experiments: Sequence) -> bool:
+    """Whether the input changes within an experiment (not only between them)."""
+    for e in experiments:
+        i = np.ravel(np.asarray(e.current, dtype=float))
+        if i.size > 1 and np.ptp(i) > 1e-6 * max(1.0, float(np.max(np.abs(i)))):
+            return True
+    return False
+
+
+MODEL_TEMPLATES: dict[str, Callable[[Sequence], AbstractHysteresis | Damper]] = {
     "bingham": bingham,
     "bouc_wen": bouc_wen,
     "normalized_bouc_wen": normalized_bouc_wen,
     "dahl": dahl,
     "lugre": lugre,
     "spencer": spencer,
+    "shear_thinning_spencer": shear_thinning_spencer,
+    "bouc_wen_lag": with_lag(bouc_wen),
+    "spencer_lag": with_lag(spencer),
+    "shear_thinning_spencer_lag": with_lag(shear_thinning_spencer),
 }
 """Model templates by name: `MODEL_TEMPLATES[name](experiments)` is a constrained
 initial guess for `jaxmr.fit`, scaled from the experiments."""

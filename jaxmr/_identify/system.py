@@ -9,7 +9,6 @@ Noël & Schoukens is this problem). The Levenberg–Marquardt engine, the column
 the statistics and the result are `fit`'s (`jaxmr._identify`).
 """
 
-import warnings
 from collections.abc import Callable, Sequence
 
 import equinox as eqx
@@ -18,24 +17,24 @@ import jax.numpy as jnp
 import numpy as np
 import optimistix as optx
 
-from ._closed_loop import _as_controller, simulate_system
-from ._control.base import AbstractController
-from ._custom_types import Array, Float
-from ._identify import (
-    FitResult,
-    _assemble_result,
-    _column_scale,
-    _divide,
-    _iterate,
-    _multiply,
-    _per_experiment,
-    _progress_printer,
-    _statistics,
+from .._closed_loop import _as_controller, simulate_system
+from .._control.base import AbstractController
+from .._custom_types import Array, Float
+from .._misc import as_float_array, is_concrete
+from .._parameter import free_filter, unwrap
+from .._signal import AbstractSignal, _is_uniform, as_signal
+from .._systems.base import AbstractSystem
+from .data import _per_experiment
+from .fit import warn_if_float32
+from .result import FitResult, assemble, statistics
+from .solver import (
+    FastLevenbergMarquardt,
+    column_scale,
+    divide,
+    iterate,
+    multiply,
+    progress_printer,
 )
-from ._misc import as_float_array, is_concrete
-from ._parameter import free_filter, unwrap
-from ._signal import AbstractSignal, _is_uniform, as_signal
-from ._systems.base import AbstractSystem
 
 
 def _as_excitation(x) -> AbstractSignal:
@@ -254,11 +253,11 @@ def _closed_residuals(static, data: _SystemData, sim: _Simulation):
     The engine's `static`, `data` and `integrator` slots are ignored.
     """
 
-    def residuals(free, _static, _data, _sim):
+    def residuals(free, _static, _data, _extra):
         return _system_residuals(free, static, data, sim)
 
-    def scaled_residuals(y, scale, _data, _sim):
-        return _system_residuals(_multiply(y, scale), static, data, sim)
+    def scaled_residuals(y, _static, _data, scale):
+        return _system_residuals(multiply(y, scale), static, data, sim)
 
     return residuals, scaled_residuals
 
@@ -341,13 +340,7 @@ def fit_system(
     **Returns:** a `jaxmr.FitResult` (`rmse` per record in the output's unit,
     `nrmse` = rmse/std of the measured output, `experiment_names` the records' names).
     """
-    if jnp.result_type(float) != jnp.float64:
-        warnings.warn(
-            "jaxmr.fit_system is running in float32: identification needs float64. "
-            "Call jax.config.update('jax_enable_x64', True) before creating arrays.",
-            UserWarning,
-            stacklevel=2,
-        )
+    warn_if_float32("jaxmr.fit_system")
     if not isinstance(system, AbstractSystem):
         raise TypeError(
             "`system` must be a jaxmr system (SingleDegreeOfFreedom, QuarterCar, ...), "
@@ -388,20 +381,20 @@ def fit_system(
         delay=delay,
     )
     if solver is None:
-        solver = optx.LevenbergMarquardt(rtol=rtol, atol=atol)
+        solver = FastLevenbergMarquardt(rtol=rtol, atol=atol)
     residuals, scaled_residuals = _closed_residuals(static, data, sim)
-    scale = _column_scale(free, static, data, sim, residuals)
-    best_y, best_loss, history, steps, reasons = _iterate(
+    scale = column_scale(residuals, free, static, None, None)
+    best_y, best_loss, history, steps, reasons, interrupted = iterate(
         solver,
-        _divide(jax.tree.map(lambda a: a[None], free), scale),
-        (scaled_residuals, scale, None, None),
+        divide(jax.tree.map(lambda a: a[None], free), scale),
+        (scaled_residuals, None, None, scale),
         None,
         max_steps,
         patience,
         ftol,
-        _progress_printer(progress),
+        progress_printer(progress),
     )
-    free_best = jax.tree.map(lambda a: a[0], _multiply(best_y, scale))
+    free_best = jax.tree.map(lambda a: a[0], multiply(best_y, scale))
     return _system_result(
         free_best,
         static,
@@ -413,26 +406,40 @@ def fit_system(
         steps,
         reasons[0],
         identifiability_threshold,
+        interrupted,
     )
 
 
 def _system_result(
-    free, static, data, sim, residuals, loss, history, steps, reason, threshold
+    free,
+    static,
+    data,
+    sim,
+    residuals,
+    loss,
+    history,
+    steps,
+    reason,
+    threshold,
+    interrupted,
 ) -> FitResult:
     model = unwrap(eqx.combine(free, static))
     simulated, _ = _simulate_records_jit(model, data, sim)
-    # `static` and `data` for the parameter values and the number of observations;
-    # the residual closes over its own.
-    statistics = _statistics(free, static, data, sim, residuals)
-    return _assemble_result(
+    mask = np.asarray(data.mask) > 0
+    # The residual closes over its own data; `static` gives the parameter values.
+    stats = statistics(residuals, free, static, None, None, int(mask.sum()))
+    return assemble(
         free,
         static,
-        np.asarray(simulated),
-        data,
-        statistics,
+        list(np.asarray(simulated)),
+        list(np.asarray(data.measured)),
+        list(mask),
+        data.names,
+        stats,
         loss,
         history,
         steps,
         reason,
         threshold,
+        interrupted,
     )

@@ -14,84 +14,10 @@ from types import SimpleNamespace
 import equinox as eqx
 import numpy as np
 
-from ._identify import FitResult, _simulate_data, fit, stack_experiments
-from ._integrate import AbstractIntegrator, FixedStep
-from ._model_library import MODEL_TEMPLATES
-from ._parameter import unwrap
-
-# The fixed step `fit` uses by default: at most 0.5 ms (see `fit`'s `integrator`).
-MAX_STEP = 5e-4  # s
-
-_simulate = eqx.filter_jit(_simulate_data)
-
-
-def default_integrator(experiments: Sequence) -> FixedStep:
-    """`fit`'s default integrator for these experiments: RK4 with steps of at most
-    0.5 ms (an integer number of substeps per sample interval)."""
-    longest = max(float(np.max(np.diff(np.asarray(e.t)))) for e in experiments)
-    return FixedStep(substeps=max(1, int(np.ceil(longest / MAX_STEP))))
-
-
-def predict_all(
-    model, experiments: Sequence, *, integrator: AbstractIntegrator | None = None
-) -> list[np.ndarray]:
-    """The force (torque) `model` predicts for each experiment, in one batched run.
-
-    Each experiment is simulated from the virgin state at its first sample, driven by
-    its measured motion and input (a measured force is not needed).
-
-    **Arguments:**
-
-    - `model`: a hysteresis model or `Damper` (constraint wrappers are resolved).
-    - `experiments`: `jaxmr.data.Experiment`s (or anything with `t`, `x`, `v`,
-      `current`, `name`).
-    - `integrator`: default `fit`'s: `FixedStep` with steps of at most 0.5 ms.
-
-    **Returns:** one NumPy array of forces [N] (torques [N·m]) per experiment, at its
-    samples; NaN where a simulation diverged.
-    """
-    experiments = list(experiments)
-    if not experiments:
-        return []
-    if integrator is None:
-        integrator = default_integrator(experiments)
-    # `stack_experiments` pads and stacks; the force it needs is only a placeholder here.
-    stand_ins = [
-        SimpleNamespace(
-            t=e.t,
-            x=e.x,
-            v=e.v,
-            current=e.current,
-            force=np.zeros(np.shape(e.t)),
-            name=getattr(e, "name", ""),
-        )
-        for e in experiments
-    ]
-    data = stack_experiments(stand_ins, weighting="force")
-    force = np.asarray(_simulate(unwrap(model), data, integrator))
-    return [force[k, : len(np.asarray(e.t))] for k, e in enumerate(experiments)]
-
-
-def predict(
-    model, experiment, *, integrator: AbstractIntegrator | None = None
-) -> np.ndarray:
-    """The force [N] (torque [N·m]) `model` predicts at `experiment`'s samples, from the
-    virgin state, under its measured motion and input. See `predict_all`."""
-    return predict_all(model, [experiment], integrator=integrator)[0]
-
-
-def prediction_errors(
-    predicted: np.ndarray, measured: np.ndarray, keep: np.ndarray | None = None
-) -> tuple[float, float]:
-    """RMSE [force unit] and NRMSE = RMSE/std(measured) [1] over the samples `keep`
-    (all by default); `inf` for a prediction that is not finite."""
-    predicted, measured = np.asarray(predicted), np.asarray(measured)
-    if keep is not None:
-        predicted, measured = predicted[keep], measured[keep]
-    if not np.all(np.isfinite(predicted)):
-        return np.inf, np.inf
-    rmse = float(np.sqrt(np.mean((predicted - measured) ** 2)))
-    return rmse, rmse / float(np.std(measured))
+from .fit import fit
+from .result import FitResult
+from .score import nrmse, predict_all, rmse
+from .templates import MODEL_TEMPLATES
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -106,6 +32,8 @@ class ModelScore:
     - `fit_time`: wall time of the fit [s], compilation included.
     - `num_parameters`: the number of fitted (free) parameters.
     - `error`: why the candidate failed, or `None`.
+    - `stage`: `"full"` (fitted on all the training data, scored on whole held-out
+      experiments) or `"screened"` (on their starts only, see `compare_models`).
     """
 
     name: str
@@ -116,6 +44,7 @@ class ModelScore:
     fit_time: float
     num_parameters: int
     error: str | None = None
+    stage: str = "full"
 
     @property
     def model(self):
@@ -142,7 +71,7 @@ def score_table(scores: Sequence[ModelScore]) -> str:
     """The ranking as a text table: rank, name, parameters, fit time, median NRMSE on
     the training and held-out experiments, and the fit's outcome."""
     rows = [
-        f"{'rank':>4}  {'model':<20} {'params':>6} {'fit [s]':>8} {'train':>8} "
+        f"{'rank':>4}  {'model':<28} {'params':>6} {'fit [s]':>8} {'train':>8} "
         f"{'held-out':>9}  outcome"
     ]
     for k, s in enumerate(scores, start=1):
@@ -154,8 +83,10 @@ def score_table(scores: Sequence[ModelScore]) -> str:
             outcome = f"not identified ({len(s.result.unidentified)} combination(s))"
         else:
             outcome = s.result.reason.split(":")[0].split(" (")[0]
+        if s.stage != "full" and s.error is None:
+            outcome += " (screening only)"
         rows.append(
-            f"{k:>4}  {s.name:<20} {s.num_parameters:>6} {s.fit_time:>8.1f} "
+            f"{k:>4}  {s.name:<28} {s.num_parameters:>6} {s.fit_time:>8.1f} "
             f"{s.median_train_nrmse:>8.4f} {s.median_test_nrmse:>9.4f}  {outcome}"
         )
     return "\n".join(rows)
@@ -211,6 +142,52 @@ def _score_masks(test, score_from) -> list[np.ndarray]:
     return masks
 
 
+# Screening: each candidate is first fitted on the start of every training experiment
+# (up to SCREEN_CROSSINGS crossings of the displacement's ±20 % band after the discarded
+# start, i.e. one cycle of a sine test, and at least SCREEN_DURATION seconds) for at
+# most SCREEN_STEPS steps; only the best `finalists` are fitted on all the data.
+SCREEN_CROSSINGS = 2
+SCREEN_DURATION = 1.0  # s
+SCREEN_STEPS = 25
+
+
+def screening_end(e, discard: float = 0.0) -> float:
+    """The time [s] up to which `e` is used for screening (see `SCREEN_CROSSINGS`)."""
+    t, x = np.asarray(e.t, float), np.asarray(e.x, float)
+    start = t[0] + discard
+    after = t >= start
+    centre = 0.5 * (np.max(x) + np.min(x))
+    band = 0.2 * 0.5 * np.ptp(x)
+    side, count, end = 0, 0, t[-1]
+    for when, value in zip(t[after], x[after]):
+        now = 1 if value > centre + band else (-1 if value < centre - band else 0)
+        if now and now != side:
+            if side:
+                count += 1
+            side = now
+            if count >= SCREEN_CROSSINGS:
+                end = when
+                break
+    return float(min(t[-1], max(end, start + SCREEN_DURATION)))
+
+
+def _per(value, n: int):
+    """One value (or None) per experiment, from None, a number or a sequence."""
+    if value is None:
+        return [None] * n
+    array = np.asarray(value, dtype=float)
+    return [float(a) for a in np.broadcast_to(array, (n,))]
+
+
+def _score(model, test, masks, smoothing, integrator):
+    predicted = predict_all(model, test, integrator=integrator, smoothing=smoothing)
+    errors = [
+        (rmse(p, e.force, m), nrmse(p, e.force, m))
+        for p, e, m in zip(predicted, test, masks)
+    ]
+    return np.array([r for r, _ in errors]), np.array([n for _, n in errors])
+
+
 def compare_models(
     names_or_models,
     train: Sequence,
@@ -218,16 +195,24 @@ def compare_models(
     *,
     score_from: float | Sequence[float] | None = None,
     log: Callable[[str], None] | None = None,
+    finalists: int | None = 2,
+    screen_steps: int = SCREEN_STEPS,
+    discard=None,
+    smoothing=None,
+    test_smoothing=None,
     **fit_kwargs,
 ) -> list[ModelScore]:
     r"""Fit each candidate on `train` and rank them by their error on `test`.
 
-    Each candidate is fitted with `jaxmr.fit` (silently: `progress=False` unless given)
-    and then predicts every held-out experiment from the virgin state; the score is
-    $\mathrm{NRMSE} = \mathrm{RMSE}/\mathrm{std}(F)$ per held-out experiment, and the
-    ranking is by its median (robust to one odd test). A candidate that fails (its
-    template cannot scale to the data, or its fit raises) is ranked last with the
-    reason.
+    Time goes where it matters: every candidate is first *screened* — fitted for at
+    most `screen_steps` steps on the start of each training experiment (about one
+    cycle past `discard`, see `screening_end`) and scored on the same stretch of the
+    held-out ones — and only the best `finalists` are fitted on all the training data
+    (from their screening fit) and scored on whole held-out experiments. The score is
+    $\mathrm{NRMSE} = \mathrm{RMSE}/\mathrm{std}(F)$ per held-out experiment, the
+    ranking by its median (robust to one odd test): finalists first, then the
+    screened rest. A candidate that fails (its template cannot scale to the data, or
+    its fit raises) is ranked last with the reason.
 
     **Arguments:**
 
@@ -240,6 +225,12 @@ def compare_models(
       samples are simulated, to bring the hysteretic state from its virgin value to
       the test's, but not scored (e.g. the first cycle). Default: all samples.
     - `log`: called with a line of text before and after each fit (e.g. `print`).
+    - `finalists`: how many screened candidates are fitted on all the data (`None`:
+      no screening, every candidate fitted on all the data).
+    - `screen_steps`: the most Levenberg–Marquardt steps of a screening fit.
+    - `discard`, `smoothing`: per training experiment (or one for all), as `fit`'s.
+    - `test_smoothing`: the smoothing [s] of the held-out experiments' force (one for
+      all or one each; default: `smoothing` when it is one number).
     - `fit_kwargs`: passed to `jaxmr.fit` (`max_steps`, `starts`, `integrator`, ...).
 
     **Returns:** the `ModelScore`s, best (lowest median held-out NRMSE) first.
@@ -258,53 +249,125 @@ def compare_models(
                 f"held-out experiment {getattr(e, 'name', '')!r} has no measured force "
                 "to score against."
             )
+    if finalists is not None and finalists < 1:
+        raise ValueError(f"`finalists` must be >= 1 or None, got {finalists}.")
     masks = _score_masks(test, score_from)
+    if test_smoothing is None and smoothing is not None and np.ndim(smoothing) == 0:
+        test_smoothing = smoothing
     fit_kwargs.setdefault("progress", False)
-    # Predictions take steps of at most 0.5 ms on the held-out data too, whose sample
-    # interval may be longer than the training data's.
     integrator = fit_kwargs.get("integrator")
-    if integrator is None:
-        integrator = default_integrator(train + test)
     say = log or (lambda line: None)
     test_names = tuple(str(getattr(e, "name", "")) for e in test)
-    scores = []
+    train_discard = _per(discard, len(train))
+    # The screening stretch of each experiment: its start up to `screening_end`.
+    cut_train = [
+        _experiment_window(e, None, screening_end(e, d or 0.0))
+        for e, d in zip(train, train_discard)
+    ]
+    test_discard = [
+        float(np.asarray(e.t)[np.argmax(m)] - np.asarray(e.t)[0])
+        for e, m in zip(test, masks)
+    ]
+    cut_test = [
+        _experiment_window(e, None, screening_end(e, d))
+        for e, d in zip(test, test_discard)
+    ]
+    cut_masks = [m[: len(np.asarray(c.t))] for m, c in zip(masks, cut_test)]
+    failed, scores = [], []
     for name, build in _candidates(names_or_models, train):
-        say(f"{name}: fitting on {len(train)} experiment(s)...")
+        stage = "screened" if finalists is not None else "full"
+        fit_on = cut_train if finalists is not None else train
+        scored_on, scored_masks = (
+            (cut_test, cut_masks) if finalists is not None else (test, masks)
+        )
+        say(f"{name}: {stage} fit on {len(train)} experiment(s)...")
         start = time.perf_counter()
         try:
-            result = fit(build(), train, **fit_kwargs)
-            predicted = predict_all(result.model, test, integrator=integrator)
-        except Exception as e:  # one candidate's failure must not end the comparison
+            kwargs = dict(fit_kwargs)
+            if finalists is not None:
+                kwargs["max_steps"] = min(screen_steps, kwargs.get("max_steps", 200))
+                kwargs.setdefault("statistics_refinement", 1)
+            result = fit(
+                build(), fit_on, discard=discard, smoothing=smoothing, **kwargs
+            )
+            test_rmse, test_nrmse = _score(
+                result.model, scored_on, scored_masks, test_smoothing, integrator
+            )
+        except (ValueError, TypeError, RuntimeError, FloatingPointError) as e:
             elapsed = time.perf_counter() - start
             message = f"{type(e).__name__}: {e}"
             say(f"{name}: failed after {elapsed:.1f} s: {message}")
             nan = np.full(len(test), np.nan)
-            scores.append(
+            failed.append(
                 ModelScore(name, None, test_names, nan, nan, elapsed, 0, message)
             )
             continue
         elapsed = time.perf_counter() - start
-        errors = [
-            prediction_errors(p, np.asarray(e.force), m)
-            for p, e, m in zip(predicted, test, masks)
-        ]
         score = ModelScore(
             name=name,
             result=result,
             test_names=test_names,
-            test_rmse=np.array([r for r, _ in errors]),
-            test_nrmse=np.array([n for _, n in errors]),
+            test_rmse=test_rmse,
+            test_nrmse=test_nrmse,
             fit_time=elapsed,
             num_parameters=len(result.names),
+            stage=stage,
         )
         say(
             f"{name}: {elapsed:.1f} s, {result.num_steps} steps, {len(result.names)} "
             f"parameters; median NRMSE train {score.median_train_nrmse:.4f}, held-out "
-            f"{score.median_test_nrmse:.4f}"
+            f"{score.median_test_nrmse:.4f} ({stage})"
         )
         scores.append(score)
-    # Stable: ties (e.g. two failures) keep the order given.
-    return sorted(scores, key=lambda s: s.median_test_nrmse)
+        if result.interrupted:
+            say("interrupted: the comparison stops here")
+            return sorted(scores, key=lambda s: s.median_test_nrmse) + failed
+    scores.sort(key=lambda s: s.median_test_nrmse)
+    if finalists is None:
+        return scores + failed
+    final = []
+    for screened in scores[:finalists]:
+        name = screened.name
+        say(
+            f"{name}: full fit on {len(train)} experiment(s), from its screening fit..."
+        )
+        start = time.perf_counter()
+        try:
+            result = fit(
+                screened.result.constrained,
+                train,
+                discard=discard,
+                smoothing=smoothing,
+                **fit_kwargs,
+            )
+            test_rmse, test_nrmse = _score(
+                result.model, test, masks, test_smoothing, integrator
+            )
+        except (ValueError, TypeError, RuntimeError, FloatingPointError) as e:
+            say(f"{name}: full fit failed: {type(e).__name__}: {e}")
+            final.append(screened)
+            continue
+        elapsed = time.perf_counter() - start + screened.fit_time
+        score = ModelScore(
+            name,
+            result,
+            test_names,
+            test_rmse,
+            test_nrmse,
+            elapsed,
+            len(result.names),
+            stage="full",
+        )
+        say(
+            f"{name}: {elapsed:.1f} s in all, {result.num_steps} steps; median NRMSE "
+            f"train {score.median_train_nrmse:.4f}, held-out "
+            f"{score.median_test_nrmse:.4f} (full)"
+        )
+        final.append(score)
+        if result.interrupted:
+            break
+    final.sort(key=lambda s: (s.stage != "full", s.median_test_nrmse))
+    return final + scores[finalists:] + failed
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -354,7 +417,7 @@ def _experiment_window(e, start=None, end=None):
 HOLDOUT_FRACTION = 1 / 3
 
 
-def holdout_split(experiments: Sequence):
+def holdout_split(experiments: Sequence, *, indices: bool = False):
     """Choose held-out data from `experiments` alone.
 
     - With 3 or more input levels (mean current or voltage of an experiment): every
@@ -370,7 +433,9 @@ def holdout_split(experiments: Sequence):
       hysteretic state is the one the first two thirds leave.
 
     **Returns:** `(train, test, score_from, description)`: `score_from` for
-    `compare_models` (`None`, or the split times [s]), and the choice in words.
+    `compare_models` (`None`, or the split times [s]), and the choice in words; with
+    `indices=True` also the positions in `experiments` of the training and held-out
+    experiments.
     """
     experiments = list(experiments)
     levels = [float(np.mean(np.asarray(e.current))) for e in experiments]
@@ -398,11 +463,17 @@ def holdout_split(experiments: Sequence):
             f"held out the last {HOLDOUT_FRACTION:.0%} of each experiment's duration "
             "(fewer than 3 experiments)"
         )
+        everyone = list(range(len(experiments)))
+        if indices:
+            return train, experiments, splits, description, everyone, everyone
         return train, experiments, splits, description
     train = [e for k, e in enumerate(experiments) if k not in held]
     test = [e for k, e in enumerate(experiments) if k in held]
     names = ", ".join(str(getattr(e, "name", "")) for e in test)
     description = f"held out {len(test)} of {len(experiments)} ({what}): {names}"
+    if indices:
+        train_index = [k for k in range(len(experiments)) if k not in held]
+        return train, test, None, description, train_index, sorted(held)
     return train, test, None, description
 
 
@@ -413,16 +484,21 @@ def select_model(
     *,
     score_from: float | Sequence[float] | None = None,
     log: Callable[[str], None] | None = None,
+    discard=None,
+    smoothing=None,
     **fit_kwargs,
 ) -> Selection:
     """Select a model by held-out error, then refit it on everything.
 
     **Arguments:**
 
-    - `names_or_models`, `score_from`, `log`, `fit_kwargs`: as `compare_models`.
+    - `names_or_models`, `score_from`, `log`, `fit_kwargs` (`finalists`, ...): as
+      `compare_models`.
     - `train`: the experiments to fit on; with `test=None`, all the experiments, of
       which `holdout_split` holds out a part.
     - `test`: held-out experiments, or `None` to hold out part of `train`.
+    - `discard`, `smoothing`: [s], one number or one per experiment of `train` (and
+      then of `test`, in that order), as `fit`'s.
 
     **Returns:** a `Selection`: the best candidate refitted on the training and
     held-out experiments together (starting from its training fit), and the ranking.
@@ -433,14 +509,55 @@ def select_model(
     if test is None:
         if score_from is not None:
             raise ValueError("`score_from` needs `test`: give both or neither.")
-        fit_on, test, score_from, holdout = holdout_split(train)
+        n = len(train)
+        discards, widths = _per(discard, n), _per(smoothing, n)
+        fit_on, test, score_from, holdout, train_index, test_index = holdout_split(
+            train, indices=True
+        )
         everything = train
+        all_discard, all_smoothing = discards, widths
+        if score_from is not None:  # split in time: the discard still applies
+            score_from = [
+                max(s, float(np.asarray(e.t)[0]) + (d or 0.0))
+                for s, e, d in zip(score_from, test, discards)
+            ]
+        else:
+            score_from = [
+                float(np.asarray(test[k].t)[0]) + (discards[j] or 0.0)
+                for k, j in enumerate(test_index)
+            ]
+        train_discard = [discards[j] for j in train_index]
+        train_smoothing = [widths[j] for j in train_index]
+        test_smoothing = [widths[j] for j in test_index]
     else:
         test = list(test)
         fit_on, everything = train, train + test
         holdout = f"{len(test)} held-out experiment(s) given"
+        n = len(everything)
+        all_discard, all_smoothing = _per(discard, n), _per(smoothing, n)
+        train_discard, train_smoothing = (
+            all_discard[: len(train)],
+            all_smoothing[: len(train)],
+        )
+        test_smoothing = all_smoothing[len(train) :]
+        if score_from is None and discard is not None:
+            score_from = [
+                float(np.asarray(e.t)[0]) + (d or 0.0)
+                for e, d in zip(test, all_discard[len(train) :])
+            ]
+    zero = lambda values: (
+        None if all(v is None for v in values) else [v or 0.0 for v in values]
+    )
     scores = compare_models(
-        names_or_models, fit_on, test, score_from=score_from, log=log, **fit_kwargs
+        names_or_models,
+        fit_on,
+        test,
+        score_from=score_from,
+        log=log,
+        discard=zero(train_discard),
+        smoothing=zero(train_smoothing),
+        test_smoothing=zero(test_smoothing),
+        **fit_kwargs,
     )
     best = scores[0]
     if best.error is not None:
@@ -449,10 +566,20 @@ def select_model(
             + "\n".join(f"  {s.name}: {s.error}" for s in scores)
         )
     say = log or (lambda line: None)
+    if best.result.interrupted:
+        return Selection(best.name, best.result, scores, holdout)
     say(f"selected {best.name}; refitting on all {len(everything)} experiment(s)...")
     kwargs = dict(fit_kwargs)
+    kwargs.pop("finalists", None)
+    kwargs.pop("screen_steps", None)
     kwargs.setdefault("progress", False)
     # Started from the training fit (one start: `starts` served the first search).
     kwargs.pop("starts", None)
-    result = fit(best.result.constrained, everything, **kwargs)
+    result = fit(
+        best.result.constrained,
+        everything,
+        discard=zero(all_discard),
+        smoothing=zero(all_smoothing),
+        **kwargs,
+    )
     return Selection(best.name, result, scores, holdout)

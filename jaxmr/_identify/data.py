@@ -1,0 +1,507 @@
+"""The data a fit sees: measured experiments packed into lanes of RK4 steps.
+
+Every experiment is integrated with its own step, chosen by a `StepPolicy` from its
+own sample interval and peak velocity, and experiments of different lengths are not
+padded to the longest: their steps are laid end to end in a few *lanes* (one
+`lax.scan` each, the lanes vectorised with `vmap`), the state reset to the virgin state
+where each experiment begins. A lane per experiment is the padded layout; one lane for
+all is fully packed; in between, longest-first assignment balances the lanes' lengths.
+The motion, the input and their stage values at every RK4 stage are computed here once
+(they do not depend on the parameters), so the scan does no lookups.
+
+NumPy in, arrays out: this runs once per fit, outside jit.
+"""
+
+import math
+from collections.abc import Sequence
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .._custom_types import Array, Bool, Float, Int
+from .._integrate import FixedStep
+from .._signal import _hermite, _hermite_slope
+
+# Default step limits (see `StepPolicy`).
+MAX_STEP = 2.5e-3  # s
+MAX_TRAVEL_LINEAR = 2.5e-5  # m
+MAX_TRAVEL_ROTARY = 5e-5  # rad
+
+
+class StepPolicy(eqx.Module):
+    r"""How long the fixed RK4 steps of a fit, a prediction or a score are, per
+    experiment.
+
+    Each sample interval is divided into the fewest equal steps for which a step is at
+    most `max_step` [s] long and the piston (rotor) travels at most `max_travel` at the
+    larger of the interval's end velocities. Hysteretic
+    states relax over a displacement, not a time (their rates scale with $|v|$), so
+    travel is what bounds the error; the time limit covers current dynamics and slow
+    motions.
+
+    Measured: the published UTFSM Spencer model at 0 A, whose force jumps within
+    30 µm of travel after a reversal, needs 25 µm (1 ms steps at 77 mm/s diverge); on
+    the 30 UTFSM records the default policy takes 0.69 M steps where uniform steps of
+    25 µm at each record's peak speed take 1.14 M, for the same loss to 4 digits.
+    The SAS brake (γ ≪ β: errors grow where z crosses zero just after a reversal, at
+    low speed) at 1 Hz, ±3.5° sampled at 250 Hz–1 kHz is within 3.5e-5 of its peak
+    torque of an adaptive Dopri8 solve at rtol 1e-8 with 5e-5 rad (2e-4 rad left
+    1.9e-3; tests/test_identify_engine.py asserts < 1e-4), far below measurement
+    noise (~1 %).
+
+    **Arguments:**
+
+    - `max_step`: the longest step [s], default 2.5 ms (a coil lag of 190 1/s is then
+      integrated at η·h ≤ 0.5).
+    - `max_travel`: the most travel per step, in the motion's unit ([m], or [rad] for
+      a rotary device); `None` (default): 25 µm, or 5e-5 rad for a rotary device.
+    - `substeps`: a fixed number of steps per sample interval for every experiment
+      instead (the limits are then ignored), e.g. to reproduce `FixedStep(k)`.
+    """
+
+    max_step: float = eqx.field(static=True, default=MAX_STEP)
+    max_travel: float | None = eqx.field(static=True, default=None)
+    substeps: int | None = eqx.field(static=True, default=None)
+
+    def __check_init__(self):
+        if not (math.isfinite(self.max_step) and self.max_step > 0):
+            raise ValueError(
+                f"StepPolicy: `max_step` must be > 0 [s], got {self.max_step}."
+            )
+        if self.max_travel is not None and not (
+            math.isfinite(self.max_travel) and self.max_travel > 0
+        ):
+            raise ValueError(
+                f"StepPolicy: `max_travel` must be > 0 (or None), got {self.max_travel}."
+            )
+        if self.substeps is not None and (
+            not isinstance(self.substeps, int) or self.substeps < 1
+        ):
+            raise ValueError(
+                f"StepPolicy: `substeps` must be a positive integer or None, got "
+                f"{self.substeps}."
+            )
+
+    def travel(self, rotary: bool = False) -> float:
+        """The most travel per step [m or rad]."""
+        if self.max_travel is not None:
+            return self.max_travel
+        return MAX_TRAVEL_ROTARY if rotary else MAX_TRAVEL_LINEAR
+
+    def step(self, v, rotary: bool = False) -> float:
+        """The longest allowed step [s] at velocities up to max |`v`|."""
+        peak = float(np.max(np.abs(np.asarray(v)))) if np.size(v) else 0.0
+        travel = self.travel(rotary)
+        return min(self.max_step, travel / peak) if peak > 0 else self.max_step
+
+    def counts(self, t, v, rotary: bool = False) -> np.ndarray:
+        """Steps in each sample interval of an experiment at times `t`, velocities
+        `v`: the fewest equal steps of at most `max_step` whose travel at the larger
+        of the interval's end velocities is at most `max_travel`."""
+        h = np.diff(np.asarray(t, dtype=float))
+        if self.substeps is not None:
+            return np.full(h.shape, self.substeps, dtype=int)
+        speed = np.abs(np.asarray(v, dtype=float))
+        speed = np.maximum(speed[:-1], speed[1:])
+        # A hair of slack so that an interval exactly k steps long gets k, not k + 1.
+        slack = 1 - 1e-9
+        by_time = np.ceil(h / self.max_step * slack)
+        by_travel = np.ceil(h * speed / self.travel(rotary) * slack)
+        return np.maximum(1, np.maximum(by_time, by_travel)).astype(int)
+
+    def refined(self, factor: int) -> "StepPolicy":
+        """The same policy with steps `factor` times shorter."""
+        if self.substeps is not None:
+            return StepPolicy(self.max_step, self.max_travel, self.substeps * factor)
+        travel = self.max_travel
+        return StepPolicy(
+            self.max_step / factor, None if travel is None else travel / factor
+        )
+
+
+def as_step_policy(integrator) -> StepPolicy:
+    """`None` (the default policy), a `StepPolicy`, or `FixedStep(k)` (k steps per
+    sample interval, as a `StepPolicy(substeps=k)`)."""
+    if integrator is None:
+        return StepPolicy()
+    if isinstance(integrator, StepPolicy):
+        return integrator
+    if isinstance(integrator, FixedStep):
+        return StepPolicy(substeps=integrator.substeps)
+    raise TypeError(
+        "identification integrates with fixed RK4 steps chosen per experiment: pass "
+        "`integrator=None` (the default jaxmr.StepPolicy()), a jaxmr.StepPolicy "
+        "(e.g. StepPolicy(max_travel=1e-5) for shorter steps) or jaxmr.FixedStep(k), "
+        f"got {type(integrator).__name__}."
+    )
+
+
+class FitData(eqx.Module):
+    """Experiments packed for simulation and scoring (see the module docstring).
+
+    Steps (axis 0: lane, axis 1: step): `inputs[l, s, stage]` is (x, v, input) at the
+    step's start, middle and end; `step` its length [s] (0 for padding); `reset` marks
+    the first step of an experiment. Samples (all experiments' samples in order):
+    `sample_index` is the flat (lane·steps + step) index of the step that starts at each
+    sample, `t`, `force` the measured times and forces; the smoothing is a moving
+    average of the simulated force over [lo, hi] per sample (`smooth`: whether to);
+    the residual is over the samples `kept`, times `weight`.
+    """
+
+    inputs: Float[Array, "lanes steps 3 3"]
+    step: Float[Array, "lanes steps"]
+    reset: Bool[Array, "lanes steps"]
+    sample_index: Int[Array, " samples"]
+    t: Float[Array, " samples"]
+    force: Float[Array, " samples"]
+    same_run: Float[Array, " samples_minus_1"]
+    lo_index: Int[Array, " samples"]
+    lo_fraction: Float[Array, " samples"]
+    hi_index: Int[Array, " samples"]
+    hi_fraction: Float[Array, " samples"]
+    span: Float[Array, " samples"]
+    smooth: Bool[Array, " samples"]
+    kept: Int[Array, " residuals"]
+    weight: Float[Array, " residuals"]
+    names: tuple[str, ...] = eqx.field(static=True)
+    offsets: tuple[int, ...] = eqx.field(static=True)
+    data_steps: int = eqx.field(static=True)
+    kept_counts: tuple[int, ...] = eqx.field(static=True)
+
+    @property
+    def num_steps(self) -> int:
+        """RK4 steps simulated per evaluation (all lanes, padding included)."""
+        return int(self.step.shape[0] * self.step.shape[1])
+
+    def split(self, samples) -> list[np.ndarray]:
+        """A per-sample array cut into one array per experiment."""
+        samples = np.asarray(samples)
+        bounds = list(self.offsets) + [self.t.shape[0]]
+        return [samples[a:b] for a, b in zip(bounds[:-1], bounds[1:])]
+
+    def kept_mask(self) -> np.ndarray:
+        """Per sample: is it scored (not discarded)?"""
+        mask = np.zeros(self.t.shape[0], dtype=bool)
+        mask[np.asarray(self.kept)] = True
+        return mask
+
+
+def _per_experiment(value, n: int, what: str, item: str = "experiment") -> np.ndarray:
+    """A non-negative duration [s] per experiment (or record, `item`) from `None`, a
+    number or a sequence."""
+    array = np.asarray(0.0 if value is None else value, dtype=float)
+    if array.ndim > 1 or (array.ndim == 1 and array.shape[0] != n):
+        raise ValueError(
+            f"`{what}` must be one number or one per {item} ({n}), got shape "
+            f"{array.shape}."
+        )
+    array = np.broadcast_to(array, (n,))
+    if not np.all(np.isfinite(array)) or np.any(array < 0):
+        raise ValueError(f"`{what}` must be finite and >= 0 [s], got {value!r}.")
+    return array
+
+
+def _columns(e, k: int, need_force: bool):
+    name = str(getattr(e, "name", f"experiment {k}"))
+    t, x, v = (np.asarray(getattr(e, key), dtype=float) for key in ("t", "x", "v"))
+    i = np.broadcast_to(np.asarray(e.current, dtype=float), t.shape)
+    force = getattr(e, "force", None)
+    if force is None:
+        if need_force:
+            raise ValueError(
+                f"experiment {k} ({name!r}) has no measured force: fitting and scoring "
+                "need the `F` (or `T`) column."
+            )
+        force = np.zeros_like(t)
+    force = np.asarray(force, dtype=float)
+    if t.ndim != 1 or t.shape[0] < 2:
+        raise ValueError(f"experiment {name!r}: give at least 2 samples.")
+    for label, column in (("t", t), ("x", x), ("v", v), ("input", i), ("F", force)):
+        if column.shape != t.shape:
+            raise ValueError(
+                f"experiment {name!r}: `{label}` has shape {column.shape}, `t` "
+                f"{t.shape}; give one value per sample."
+            )
+        bad = np.flatnonzero(~np.isfinite(column))
+        if bad.size:
+            raise ValueError(
+                f"experiment {name!r}: `{label}` is not finite at sample {bad[0]} "
+                f"(t = {t[min(bad[0], len(t) - 1)]:g} s); repair or drop those samples."
+            )
+    if not np.all(np.diff(t) > 0):
+        raise ValueError(f"experiment {name!r}: `t` must be strictly increasing.")
+    return name, t, x, v, i, force
+
+
+def _stage_inputs(t, x, v, i, counts) -> tuple[np.ndarray, np.ndarray]:
+    """(x, v, input) at the start, middle and end of each step, `counts[k]` equal steps
+    in sample interval k, and the steps' lengths. The motion is the cubic Hermite
+    interpolant of (x, v) (as `Sampled` with derivatives), the input linear."""
+    h = np.diff(t)
+    interval = np.repeat(np.arange(len(h)), counts)
+    first = np.repeat(np.cumsum(counts) - counts, counts)
+    j = np.arange(len(interval)) - first
+    r = counts[interval].astype(float)
+    s = np.stack([j / r, (j + 0.5) / r, (j + 1.0) / r], axis=-1)
+    hk = h[interval][:, None]
+    y0, y1 = x[:-1][interval][:, None], x[1:][interval][:, None]
+    d0, d1 = (v[:-1] * h)[interval][:, None], (v[1:] * h)[interval][:, None]
+    i0, i1 = i[:-1][interval][:, None], i[1:][interval][:, None]
+    position = _hermite(s, y0, y1, d0, d1)
+    velocity = _hermite_slope(s, y0, y1, d0, d1) / hk
+    current = i0 + s * (i1 - i0)
+    inputs = np.stack([position, velocity, current], axis=-1)
+    steps = h[interval] / r
+    # The last sample starts one step of length 0, whose start is that sample.
+    last = np.tile(np.array([x[-1], v[-1], i[-1]]), (3, 1))[None]
+    return np.concatenate([inputs, last]), np.append(steps, 0.0)
+
+
+def window(t, width: float):
+    """The centred moving-average window of `width` [s] at every sample of `t`,
+    shrinking at the ends: for each end, the sample interval it falls in (index) and
+    the fraction into it, and the window's length [s] (1 where it is empty)."""
+    lo = np.clip(t - width / 2, t[0], t[-1])
+    hi = np.clip(t + width / 2, t[0], t[-1])
+    ends = []
+    for edge in (lo, hi):
+        j = np.clip(np.searchsorted(t, edge, side="right") - 1, 0, len(t) - 2)
+        ends.append((j, (edge - t[j]) / (t[j + 1] - t[j])))
+    return ends[0], ends[1], np.where(hi > lo, hi - lo, 1.0)
+
+
+def _lanes(sizes: Sequence[int], lanes: int) -> list[list[int]]:
+    """Experiments (indices) per lane: longest first, each to the shortest lane."""
+    lanes = max(1, min(lanes, len(sizes)))
+    content, totals = [[] for _ in range(lanes)], [0] * lanes
+    for k in sorted(range(len(sizes)), key=lambda k: -sizes[k]):
+        j = int(np.argmin(totals))
+        content[j].append(k)
+        totals[j] += sizes[k]
+    return content
+
+
+def default_lanes(num_experiments: int) -> int:
+    """The number of lanes `pack` uses by default (measured fastest on 2 CPU cores:
+    benchmarks/identify_speed.py)."""
+    return min(num_experiments, LANES)
+
+
+LANES = 8
+
+
+def pack(
+    experiments: Sequence,
+    policy: StepPolicy | None = None,
+    *,
+    weighting: str = "nrmse",
+    discard=None,
+    smoothing=None,
+    lanes: int | None = None,
+    need_force: bool = True,
+) -> FitData:
+    """Pack experiments for `fit` (and for prediction and scoring: `need_force=False`).
+
+    **Arguments:**
+
+    - `experiments`: `jaxmr.data.Experiment`s (or anything with `t`, `x`, `v`,
+      `current`, `force`, `name`), any lengths and sample rates.
+    - `policy`: the `StepPolicy` (default `StepPolicy()`).
+    - `weighting`: `"nrmse"` (each experiment weighted by 1/(std(F)·sqrt(N)), so the
+      loss is half the sum of squared NRMSEs) or `"force"` (unweighted).
+    - `discard`, `smoothing`: [s], one number or one per experiment (see `fit`).
+    - `lanes`: how many scans the steps are laid out in (default `default_lanes`):
+      `len(experiments)` is the padded layout, 1 packs everything into one scan.
+
+    **Returns:** a `FitData`.
+    """
+    experiments = list(experiments)
+    if not experiments:
+        raise ValueError("`experiments` is empty: give at least one experiment.")
+    if weighting not in ("nrmse", "force"):
+        raise ValueError(f"`weighting` must be 'nrmse' or 'force', got {weighting!r}.")
+    policy = StepPolicy() if policy is None else policy
+    n = len(experiments)
+    discard = _per_experiment(discard, n, "discard")
+    widths = _per_experiment(smoothing, n, "smoothing")
+    lanes = default_lanes(n) if lanes is None else int(lanes)
+    if lanes < 1:
+        raise ValueError(f"`lanes` must be >= 1, got {lanes}.")
+
+    names, runs, substeps = [], [], []
+    for k, e in enumerate(experiments):
+        name, t, x, v, i, force = _columns(e, k, need_force)
+        r = policy.counts(t, v, bool(getattr(e, "rotary", False)))
+        inputs, steps = _stage_inputs(t, x, v, i, r)
+        names.append(name)
+        runs.append((t, force, inputs, steps))
+        substeps.append(r)
+
+    # Lay the experiments' steps out in lanes.
+    layout = _lanes([len(run[3]) for run in runs], lanes)
+    length = max(sum(len(runs[k][3]) for k in lane) for lane in layout)
+    inputs = np.zeros((len(layout), length, 3, 3))
+    step = np.zeros((len(layout), length))
+    reset = np.zeros((len(layout), length), dtype=bool)
+    first_step = [0] * n  # flat index of each experiment's first step
+    for j, lane in enumerate(layout):
+        at = 0
+        for k in lane:
+            _, _, run_inputs, run_steps = runs[k]
+            m = len(run_steps)
+            inputs[j, at : at + m] = run_inputs
+            step[j, at : at + m] = run_steps
+            reset[j, at] = True
+            first_step[k] = j * length + at
+            at += m
+        # Padding repeats the lane's last input with steps of length 0.
+        if at < length:
+            inputs[j, at:] = inputs[j, at - 1]
+
+    # Samples, in experiment order.
+    offsets, sample_index, kept, weight, kept_counts = [], [], [], [], []
+    t_all, force_all, same_run = [], [], []
+    lo_index, lo_fraction, hi_index, hi_fraction, span, smooth = [], [], [], [], [], []
+    total = 0
+    for k, (t, force, _, _) in enumerate(runs):
+        m, r = len(t), substeps[k]
+        offsets.append(total)
+        sample_index.append(first_step[k] + np.append(0, np.cumsum(r)))
+        t_all.append(t)
+        force_all.append(force)
+        same_run.append(np.append(np.ones(m - 1), 0.0))
+        keep = t >= t[0] + discard[k]
+        if not np.any(keep):
+            raise ValueError(
+                f"`discard` = {discard[k]:g} s leaves no sample of experiment "
+                f"{names[k]!r}."
+            )
+        if weighting == "nrmse":
+            scale = float(np.std(force[keep]))
+            if not scale > 0:
+                raise ValueError(
+                    f"experiment {names[k]!r} has a constant force where it is scored: "
+                    "NRMSE weighting needs a varying force (use weighting='force')."
+                )
+            w = 1.0 / (scale * np.sqrt(np.sum(keep)))
+        else:
+            w = 1.0
+        kept.append(total + np.flatnonzero(keep))
+        weight.append(np.full(int(np.sum(keep)), w))
+        kept_counts.append(int(np.sum(keep)))
+        width = widths[k]
+        (lo, lo_f), (hi, hi_f), window_span = window(t, width)
+        lo_index.append(total + lo)
+        lo_fraction.append(lo_f)
+        hi_index.append(total + hi)
+        hi_fraction.append(hi_f)
+        span.append(window_span)
+        smooth.append(np.full(m, width > 0))
+        total += m
+
+    cat = np.concatenate
+    return FitData(
+        inputs=jnp.asarray(inputs),
+        step=jnp.asarray(step),
+        reset=jnp.asarray(reset),
+        sample_index=jnp.asarray(cat(sample_index)),
+        t=jnp.asarray(cat(t_all)),
+        force=jnp.asarray(cat(force_all)),
+        same_run=jnp.asarray(cat(same_run)[:-1]),
+        lo_index=jnp.asarray(cat(lo_index)),
+        lo_fraction=jnp.asarray(cat(lo_fraction)),
+        hi_index=jnp.asarray(cat(hi_index)),
+        hi_fraction=jnp.asarray(cat(hi_fraction)),
+        span=jnp.asarray(cat(span)),
+        smooth=jnp.asarray(cat(smooth)),
+        kept=jnp.asarray(cat(kept)),
+        weight=jnp.asarray(cat(weight)),
+        names=tuple(names),
+        offsets=tuple(offsets),
+        data_steps=int(sum(len(run[3]) for run in runs)),
+        kept_counts=tuple(kept_counts),
+    )
+
+
+def pad_to(data: FitData, shape: tuple[int, int, int, int]) -> FitData:
+    """`data` padded to (lanes, steps, samples, residuals) — for a batch of independent
+    problems of one shape (`fit_each`). Padded steps have length 0, padded samples
+    point at step 0, padded residuals have weight 0."""
+    lanes, steps, samples, residuals = shape
+
+    def grow(a, n, axis=0, value=0):
+        width = [(0, 0)] * a.ndim
+        width[axis] = (0, n - a.shape[axis])
+        return jnp.pad(a, width, constant_values=value)
+
+    inputs = grow(grow(data.inputs, lanes), steps, 1, 0.0)
+    # Padded lanes and steps keep a finite, harmless input: the lane's first.
+    inputs = jnp.where(
+        (jnp.arange(lanes)[:, None, None, None] < data.inputs.shape[0])
+        & (jnp.arange(steps)[None, :, None, None] < data.inputs.shape[1]),
+        inputs,
+        data.inputs[0, :1][None],
+    )
+    old_steps = data.step.shape[1]
+    flat = (data.sample_index // old_steps) * steps + data.sample_index % old_steps
+    return eqx.tree_at(
+        lambda d: (
+            d.inputs,
+            d.step,
+            d.reset,
+            d.sample_index,
+            d.t,
+            d.force,
+            d.same_run,
+            d.lo_index,
+            d.lo_fraction,
+            d.hi_index,
+            d.hi_fraction,
+            d.span,
+            d.smooth,
+            d.kept,
+            d.weight,
+        ),
+        data,
+        (
+            inputs,
+            grow(grow(data.step, lanes), steps, 1),
+            grow(grow(data.reset, lanes, 0, True), steps, 1),
+            grow(flat, samples),
+            grow(data.t, samples),
+            grow(data.force, samples),
+            grow(data.same_run, samples - 1),
+            grow(data.lo_index, samples),
+            grow(data.lo_fraction, samples),
+            grow(data.hi_index, samples),
+            grow(data.hi_fraction, samples),
+            grow(data.span, samples, 0, 1.0),
+            grow(data.smooth, samples),
+            grow(data.kept, residuals),
+            grow(data.weight, residuals),
+        ),
+    )
+
+
+def shape_of(data: FitData) -> tuple[int, int, int, int]:
+    return (
+        data.step.shape[0],
+        data.step.shape[1],
+        data.t.shape[0],
+        data.kept.shape[0],
+    )
+
+
+def stack(datas: Sequence[FitData]) -> FitData:
+    """Independent problems padded to one shape and stacked (axis 0: problem); the
+    static fields are the first problem's (only the arrays are read under vmap)."""
+    shape = tuple(max(s) for s in zip(*(shape_of(d) for d in datas)))
+    padded = [pad_to(d, shape) for d in datas]
+    arrays = [eqx.filter(d, eqx.is_array) for d in padded]
+    static = eqx.filter(padded[0], eqx.is_array, inverse=True)
+    treedef = jax.tree.structure(arrays[0])
+    leaves = [jax.tree.leaves(a) for a in arrays]
+    stacked = [jnp.stack(xs) for xs in zip(*leaves)]
+    return eqx.combine(jax.tree.unflatten(treedef, stacked), static)

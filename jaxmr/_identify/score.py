@@ -1,0 +1,155 @@
+"""Prediction and scoring: a model simulated on measured records (the fit's own
+simulation path and step policy, `residual.simulate`) and its error, NRMSE =
+RMSE/std(F), the figure every dataset's authors quote.
+
+NumPy in, NumPy out (not jit-able): the layer around the models, like `jaxmr.data`.
+"""
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from .data import StepPolicy, as_step_policy, pack, window
+from .residual import simulate_jit
+
+
+def predict_all(
+    model,
+    experiments: Sequence,
+    *,
+    integrator: StepPolicy | None = None,
+    smoothing=None,
+) -> list[np.ndarray]:
+    """The force (torque) `model` predicts for each experiment, in one batched run.
+
+    Each experiment is simulated from the virgin state at its first sample, driven by
+    its measured motion and input (a measured force is not needed), with the steps
+    `fit` uses (`integrator`: a `StepPolicy`, default `StepPolicy()`).
+
+    **Arguments:**
+
+    - `model`: a hysteresis model or `Damper` (constraint wrappers are resolved).
+    - `experiments`: `jaxmr.data.Experiment`s (or anything with `t`, `x`, `v`,
+      `current`, `name`).
+    - `integrator`: the step policy.
+    - `smoothing`: `None`, or the width [s] of a centred moving average applied to the
+      prediction (one for all or one per experiment), as the data's authors applied
+      to the measured force (`jaxmr.data.utfsm_smoothing`).
+
+    **Returns:** one NumPy array of forces [N] (torques [N·m]) per experiment, at its
+    samples; NaN where a simulation diverged.
+    """
+    experiments = list(experiments)
+    if not experiments:
+        return []
+    data = pack(
+        experiments,
+        as_step_policy(integrator),
+        weighting="force",
+        smoothing=smoothing,
+        need_force=False,
+    )
+    force = np.asarray(simulate_jit(model, data))
+    return data.split(force)
+
+
+def predict(
+    model, experiment, *, integrator: StepPolicy | None = None, smoothing=None
+) -> np.ndarray:
+    """The force [N] (torque [N·m]) `model` predicts at `experiment`'s samples, from the
+    virgin state, under its measured motion and input. See `predict_all`."""
+    return predict_all(model, [experiment], integrator=integrator, smoothing=smoothing)[
+        0
+    ]
+
+
+def nrmse(simulated, measured, keep=None, *, remove_mean: bool = False) -> float:
+    """RMSE/std(F) [1] over the samples `keep` (a boolean mask; all when `None`); with
+    `remove_mean` both signals lose their means over those samples first. `inf` for a
+    prediction that is not finite or a measured force that does not vary."""
+    simulated, measured = np.asarray(simulated, float), np.asarray(measured, float)
+    if keep is not None:
+        simulated, measured = simulated[keep], measured[keep]
+    if not np.all(np.isfinite(simulated)):
+        return np.inf
+    if remove_mean:
+        simulated, measured = simulated - simulated.mean(), measured - measured.mean()
+    spread = float(np.std(measured))
+    if not spread > 0:
+        return np.inf
+    return float(np.sqrt(np.mean((simulated - measured) ** 2)) / spread)
+
+
+def rmse(simulated, measured, keep=None) -> float:
+    """RMSE [force unit] over the samples `keep`; `inf` if not finite."""
+    simulated, measured = np.asarray(simulated, float), np.asarray(measured, float)
+    if keep is not None:
+        simulated, measured = simulated[keep], measured[keep]
+    if not np.all(np.isfinite(simulated)):
+        return np.inf
+    return float(np.sqrt(np.mean((simulated - measured) ** 2)))
+
+
+def scored_samples(experiments, start=0.0, until=None) -> list[np.ndarray]:
+    """Per experiment, the samples with `t0 + start <= t <= t0 + until` [s] (`start`
+    and `until` one for all or one per experiment; `until=None`: the end)."""
+    n = len(experiments)
+    start = np.broadcast_to(np.asarray(0.0 if start is None else start, float), (n,))
+    until = np.broadcast_to(np.asarray(np.inf if until is None else until, float), (n,))
+    masks = []
+    for e, a, b in zip(experiments, start, until):
+        t = np.asarray(e.t, float)
+        masks.append((t >= t[0] + a) & (t <= t[0] + b))
+    return masks
+
+
+def record_nrmse(
+    model,
+    experiments,
+    *,
+    discard=0.0,
+    until=None,
+    smoothing=None,
+    remove_mean: bool = False,
+    integrator: StepPolicy | None = None,
+) -> np.ndarray:
+    """NRMSE = RMSE/std(F) of a model on whole records (`predict_all`), scored on the
+    samples with `t0 + discard <= t <= t0 + until` (the simulation always starts at
+    the first sample, so the state there is right).
+
+    **Arguments:**
+
+    - `model`, `experiments`, `integrator`, `smoothing`: as `predict_all`.
+    - `discard`: the start [s] left out of the score, per record or one for all
+      (`jaxmr.data.utfsm_first_cycle` for the UTFSM protocol).
+    - `until`: the end [s] of the scored part, per record or one for all (`None`: the
+      record's end).
+    - `remove_mean`: score force fluctuations (the NEES protocol).
+
+    **Returns:** one NRMSE per record.
+    """
+    experiments = list(experiments)
+    forces = predict_all(model, experiments, integrator=integrator, smoothing=smoothing)
+    masks = scored_samples(experiments, discard, until)
+    return np.array(
+        [
+            nrmse(f, e.force, keep, remove_mean=remove_mean)
+            for f, e, keep in zip(forces, experiments, masks)
+        ]
+    )
+
+
+def moving_average(values, t, width: float) -> np.ndarray:
+    """Centred moving average of `width` [s] of samples at times `t`, the window
+    shrinking at the ends (as MATLAB's `movmean`); `width = 0` returns the values.
+    The trapezoidal integral read at the window's ends (the same window as `fit`'s
+    `smoothing`)."""
+    values, t = np.asarray(values, float), np.asarray(t, float)
+    if not width > 0:
+        return values
+    integral = np.concatenate(
+        [[0.0], np.cumsum((values[1:] + values[:-1]) / 2 * np.diff(t))]
+    )
+    (lo, lo_fraction), (hi, hi_fraction), span = window(t, width)
+    at = lambda k, f: integral[k] + f * (integral[k + 1] - integral[k])
+    return (at(hi, hi_fraction) - at(lo, lo_fraction)) / span

@@ -1,0 +1,297 @@
+"""The solver loop: Levenberg–Marquardt (optimistix), stepped from Python through
+optimistix's public `init`/`step`/`terminate`, so that a fit can show progress, stop on
+stalled progress (solver noise can keep the optimiser's own convergence test from ever
+firing), and keep the best parameters when it fails or is interrupted.
+
+The residual function carries its own materialised Jacobian (one forward-mode pass,
+`residual.value_and_jacobian`); starts are spread in value space; the variables are
+scaled once by their Jacobian columns (Moré's scaling, frozen at the start).
+"""
+
+import time
+from collections.abc import Callable
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import lineax as lx
+import numpy as np
+import optimistix as optx
+
+from .._parameter import Bounded, Fixed, Positive, free_filter, is_parameter
+from .residual import value_and_jacobian, value_and_jacobian_jit
+
+
+def _silent(**kwargs) -> None:
+    """optimistix's `verbose` hook: `fit` reports progress itself. Module-level, so
+    that two solver instances compare equal (a lambda would make every instance a new
+    static argument and recompile the step)."""
+
+
+class FastLevenbergMarquardt(optx.AbstractGaussNewton):
+    """optimistix's Levenberg–Marquardt with a bolder trust region: it grows 10x (not
+    3.5x) after a step that achieves 75 % (not 99 %) of the predicted reduction.
+
+    From starts far from the optimum (the published UTFSM model, a 12-parameter
+    Spencer fit) the default crept for 30+ steps before its damping had relaxed: 47
+    instead of 80+ steps to the same optimum. The default solver of `fit`.
+
+    **Arguments:** `rtol`, `atol`: optimistix's convergence tolerances.
+    """
+
+    rtol: float
+    atol: float
+    norm: Callable
+    descent: optx.DampedNewtonDescent
+    search: optx.ClassicalTrustRegion
+    verbose: Callable[..., None]
+
+    def __init__(self, rtol: float = 1e-8, atol: float = 1e-10):
+        self.rtol, self.atol, self.norm = rtol, atol, optx.max_norm
+        self.descent = optx.DampedNewtonDescent(linear_solver=lx.QR())
+        self.search = optx.ClassicalTrustRegion(high_cutoff=0.75, high_constant=10.0)
+        self.verbose = _silent
+
+
+# ---------------------------------------------------------------------------------------
+# Column scaling
+
+
+def column_scale(residuals_fn, free, static, data, extra):
+    """Per free variable, 1/(norm of its Jacobian column) at the start.
+
+    optimistix's Levenberg–Marquardt damps with λ·I, which suits unit-norm columns;
+    a model's sensitivities span decades (log C0a against log α for the brake), and
+    unscaled it crept along the valley for ~3x more steps.
+    """
+    _, jac = value_and_jacobian_jit(residuals_fn, free, static, data, extra)
+    norms = jax.tree.map(lambda j: jnp.sqrt(jnp.sum(j**2, axis=0)), jac)
+    largest = max(float(jnp.max(n)) for n in jax.tree.leaves(norms))
+    # A variable the data barely see (an effect below the noise) is not magnified more
+    # than 100x: unbounded, its huge steps sent such a parameter to zero.
+    floor = max(1e-2 * largest, 1e-300)
+    return jax.tree.map(lambda n: 1.0 / jnp.maximum(n, floor), norms)
+
+
+def divide(ys, scale):
+    return jax.tree.map(lambda y, s: y / s, ys, scale)
+
+
+def multiply(ys, scale):
+    return jax.tree.map(lambda y, s: y * s, ys, scale)
+
+
+# ---------------------------------------------------------------------------------------
+# Starts
+
+
+def spread_starts(constrained, starts: int, spread: float, key, scale):
+    """The model's free variables and `starts − 1` random variations of them, stacked
+    on axis 0 (the layout of `eqx.filter(constrained, free_filter(constrained))`).
+
+    Each free parameter's *value* is multiplied by a log-uniform factor in
+    [1/spread, spread]: a `Positive` shifts its logarithm, a `Bounded` moves its value
+    (clipped inside the bounds) and maps it back, a plain number is multiplied. A value
+    of exactly 0 has no scale of its own: it moves by up to ±(spread − 1) times its
+    `scale` (the column scaling: the change that moves the residual by about one
+    unit).
+    """
+    if starts < 1:
+        raise ValueError(f"`starts` must be >= 1, got {starts}.")
+    if not spread >= 1:
+        raise ValueError(f"`spread` must be >= 1, got {spread}.")
+    key = jax.random.key(0) if key is None else key
+    log_spread = float(np.log(spread))
+    leaves, treedef = jax.tree.flatten(constrained, is_leaf=is_parameter)
+    scales = iter(jax.tree.leaves(scale))
+    varied = []
+    for k, p in enumerate(leaves):
+        if isinstance(p, Fixed) or not (is_parameter(p) or eqx.is_inexact_array(p)):
+            varied.append(p)
+            continue
+        value = p.value() if is_parameter(p) else p
+        u = jax.random.uniform(
+            jax.random.fold_in(key, k), (starts - 1,) + jnp.shape(value), minval=-1.0
+        )
+        s = next(scales)
+        if isinstance(p, Positive):
+            varied.append(
+                eqx.tree_at(lambda q: q.log_value, p, p.log_value + u * log_spread)
+            )
+        elif isinstance(p, Bounded):
+            width = p.upper - p.lower
+            moved = jnp.clip(
+                value * jnp.exp(u * log_spread),
+                p.lower + 1e-6 * width,
+                p.upper - 1e-6 * width,
+            )
+            fraction = (moved - p.lower) / width
+            varied.append(
+                eqx.tree_at(
+                    lambda q: q.raw, p, jnp.log(fraction) - jnp.log1p(-fraction)
+                )
+            )
+        else:
+            varied.append(
+                jnp.where(p == 0, p + u * (spread - 1) * s, p * jnp.exp(u * log_spread))
+            )
+    others = jax.tree.unflatten(treedef, varied)
+    spec = free_filter(constrained)
+    first = eqx.filter(constrained, spec)
+    rest = eqx.filter(others, free_filter(others))
+    return jax.tree.map(lambda a, b: jnp.concatenate([a[None], b]), first, rest)
+
+
+# ---------------------------------------------------------------------------------------
+# The loop
+
+
+def _lm_fn(y, args):
+    """optimistix's residual function. Its aux is (½‖r‖², y): the loss paired with the
+    point it belongs to, whatever step's aux `solver.step` returns."""
+    residuals_fn, static, data, extra = args
+
+    # The residual carries its own materialised Jacobian: optimistix linearises the
+    # residual and lineax then materialises that linearisation column by column, which
+    # measured 10x slower than one `jacfwd` (all columns in one vectorised forward
+    # pass). With this rule its linearisation is a matrix product.
+    @jax.custom_jvp
+    def residual(y):
+        return residuals_fn(y, static, data, extra)
+
+    @residual.defjvp
+    def residual_jvp(primals, tangents):
+        (y,), (ty,) = primals, tangents
+        r, jac = value_and_jacobian(residuals_fn, y, static, data, extra)
+        out = sum(
+            jnp.tensordot(j, t, axes=t.ndim)
+            for j, t in zip(jax.tree.leaves(jac), jax.tree.leaves(ty), strict=True)
+        )
+        return r, out
+
+    r = residual(y)
+    return r, (0.5 * jnp.sum(r**2), y)
+
+
+_OPTIONS = {"jac": "fwd"}
+
+
+# Module-level and jitted on their arguments. The solver state holds a jaxpr (static,
+# compared by identity): only its arrays cross the jit boundary, with the static part
+# from `_init` passed unchanged each step, so the compiled step is reused.
+@eqx.filter_jit
+def _init(solver, ys, args, data_axis):
+    def one(y, args):
+        f_struct, aux_struct = jax.eval_shape(lambda: _lm_fn(y, args))
+        return solver.init(_lm_fn, y, args, _OPTIONS, f_struct, aux_struct, frozenset())
+
+    return eqx.filter_vmap(one, in_axes=(0, (None, None, data_axis, None)))(ys, args)
+
+
+@eqx.filter_jit
+def _step(solver, ys, dynamic, static_state, args, data_axis):
+    def one(y, dyn, args):
+        state = eqx.combine(dyn, static_state)
+        y, state, (loss, at) = solver.step(
+            _lm_fn, y, args, _OPTIONS, state, frozenset()
+        )
+        done, result = solver.terminate(_lm_fn, y, args, _OPTIONS, state, frozenset())
+        failed = result != optx.RESULTS.successful
+        return y, eqx.filter(state, eqx.is_array), loss, at, done, failed
+
+    in_axes = (0, 0, (None, None, data_axis, None))
+    return eqx.filter_vmap(one, in_axes=in_axes)(ys, dynamic, args)
+
+
+def iterate(solver, ys, args, data_axis, max_steps, patience, ftol, report):
+    """Levenberg–Marquardt on a batch of problems, stepped from Python.
+
+    Axis 0 of `ys` is the batch (starts, or independent problems when `data_axis` is
+    0 and the data in `args` are batched too). Keeps each member's best parameters,
+    stops each on its own convergence, failure or stall. A `KeyboardInterrupt` stops
+    the loop with the best parameters so far (`interrupted` is then True); any other
+    exception propagates (a programming error is not a fit result).
+
+    Returns (best ys, best losses, history of the batch's best loss, steps, reasons,
+    interrupted).
+    """
+    dynamic, static_state = eqx.partition(
+        _init(solver, ys, args, data_axis), eqx.is_array
+    )
+    n = jax.tree.leaves(ys)[0].shape[0]
+    best_loss = np.full(n, np.inf)
+    best_y = ys
+    history, last_improvement = [], np.zeros(n, dtype=int)
+    reference = np.full(n, np.inf)
+    converged = np.zeros(n, dtype=bool)
+    failed = np.zeros(n, dtype=bool)
+    stalled = np.zeros(n, dtype=bool)
+    interrupted, k = False, 0
+    try:
+        for k in range(1, max_steps + 1):
+            ys, dynamic, loss, at, done, bad = _step(
+                solver, ys, dynamic, static_state, args, data_axis
+            )
+            loss = np.asarray(loss)
+            better = np.isfinite(loss) & (loss < best_loss)
+            best_y = jax.tree.map(
+                lambda new, old, b=better: jnp.where(
+                    jnp.reshape(b, (-1,) + (1,) * (new.ndim - 1)), new, old
+                ),
+                at,
+                best_y,
+            )
+            best_loss = np.where(better, loss, best_loss)
+            improved = best_loss < reference * (1 - ftol)
+            reference = np.where(improved, best_loss, reference)
+            last_improvement = np.where(improved, k, last_improvement)
+            history.append(float(np.min(best_loss)))
+            report(k, float(np.min(best_loss)))
+            active = ~(converged | failed | stalled)
+            failed |= active & np.asarray(bad)
+            converged |= active & np.asarray(done) & ~np.asarray(bad)
+            stalled |= active & ((k - last_improvement) >= patience)
+            if not np.any(~(converged | failed | stalled)):
+                break
+    except KeyboardInterrupt:
+        interrupted = True
+    reasons = []
+    for j in range(n):
+        if interrupted:
+            reasons.append(
+                f"interrupted at step {k}; the best parameters so far are kept"
+            )
+        elif not np.isfinite(best_loss[j]):
+            reasons.append("failed: every evaluated point gave a non-finite loss")
+        elif failed[j]:
+            reasons.append(
+                "failed: the Levenberg–Marquardt solve reported an error (e.g. a "
+                "non-finite step); the best parameters so far are kept"
+            )
+        elif converged[j]:
+            reasons.append("converged (Levenberg–Marquardt's tolerance met)")
+        elif stalled[j]:
+            reasons.append(
+                f"stalled: no relative improvement above {ftol:g} in {patience} "
+                "steps (the noise floor)"
+            )
+        else:
+            reasons.append(f"reached max_steps = {max_steps}")
+    return best_y, best_loss, history, k, reasons, interrupted
+
+
+def progress_printer(progress, label: str = "fit"):
+    """`progress(step, loss)` from `True` (a line every 2 s), `False` or a callable."""
+    if callable(progress):
+        return progress
+    if not progress:
+        return lambda step, loss: None
+    last = [time.monotonic()]
+
+    def report(step, loss):
+        now = time.monotonic()
+        if now - last[0] >= 2.0:
+            print(f"  {label} step {step:4d}: loss {loss:.6g}", flush=True)
+            last[0] = now
+
+    return report
