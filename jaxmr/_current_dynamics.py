@@ -13,7 +13,7 @@ import jax.numpy as jnp
 
 from ._current_law import _plain, as_parameter
 from ._custom_types import Array, Bool, Float, Scalar, State
-from ._misc import as_float_array, check_concrete
+from ._misc import check_concrete
 
 
 class AbstractCurrentDynamics(eqx.Module):
