@@ -3,6 +3,8 @@ generic test runs over (add a model to `MODEL_CASES` and it is tested)."""
 
 import dataclasses
 from collections.abc import Callable
+from pathlib import Path
+from types import SimpleNamespace
 
 import equinox as eqx
 import jax
@@ -10,6 +12,19 @@ import jax.numpy as jnp
 import numpy as np
 
 import jaxmr
+
+SHARED_DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
+
+
+def shared_data(*parts: str) -> Path:
+    """A path in the public datasets beside the repository; missing data is a
+    failure, not a skip."""
+    path = SHARED_DATA.joinpath(*parts)
+    assert path.exists(), (
+        f"test data missing: {path}. The public datasets must lie in ../shared/data "
+        "beside the repository (see that folder's README)."
+    )
+    return path
 
 
 def tree_allclose(x, y, *, rtol=1e-5, atol=1e-8) -> bool:
@@ -171,3 +186,30 @@ MODEL_CASES = (
         4,
     ),
 )
+
+
+def dahl_runs(rhos, k_ws):
+    """One experiment per (rho, k_w): a Dahl brake, 1 Hz ±3.5°, one cycle, 1 % noise."""
+    ts = jnp.linspace(0.0, 1.0, 101)
+    motion = jaxmr.Sine(jnp.deg2rad(20.0), 1.0)
+    rng = np.random.default_rng(1)
+    runs = []
+    for rho, k_w in zip(rhos, k_ws):
+        sol = jaxmr.simulate(jaxmr.Dahl(k_x=0.01, k_w=k_w, rho=rho), motion, 0.0, ts)
+        force = np.asarray(sol.force)
+        runs.append(
+            SimpleNamespace(
+                t=np.asarray(ts),
+                x=np.asarray(sol.displacement),
+                v=np.asarray(sol.velocity),
+                current=np.zeros(ts.shape),
+                force=force + 0.01 * np.std(force) * rng.standard_normal(force.shape),
+                name=f"rho={rho}",
+            )
+        )
+    return runs
+
+
+def dahl_guess():
+    P = jaxmr.Positive
+    return jaxmr.Dahl(k_x=P(0.02), k_w=P(2.0), rho=P(8.0))

@@ -15,16 +15,7 @@ import pytest
 import jaxmr.data as jd
 import jaxmr.data._convert as convert
 
-DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
-
-
-def _data(*parts: str) -> Path:
-    path = DATA.joinpath(*parts)
-    assert path.exists(), (
-        f"test data missing: {path}. The public datasets must lie in ../shared/data "
-        "beside the repository (see that folder's README)."
-    )
-    return path
+from .helpers import shared_data
 
 
 def _assert_same(a: jd.Experiment, b: jd.Experiment):
@@ -134,7 +125,7 @@ def test_write_csv_rejects_bad_processing(tmp_path, value):
 def utfsm(tmp_path_factory):
     """The UTFSM folder converted once (loading the 30 files takes about 2 s)."""
     out = tmp_path_factory.mktemp("utfsm") / "new" / "folder"  # created by the call
-    source = _data("utfsm_mr_damper", "sine")
+    source = shared_data("utfsm_mr_damper", "sine")
     paths = jd.convert_dataset("utfsm", source, out)
     return source, out, paths
 
@@ -194,7 +185,7 @@ def test_convert_refuses_to_overwrite(utfsm, tmp_path):
 
 
 def test_convert_nees(tmp_path):
-    source = _data("nees_dyke_mr_damper", "ranran_50.csv")
+    source = shared_data("nees_dyke_mr_damper", "ranran_50.csv")
     (path,) = jd.convert_dataset("nees", source, tmp_path)
     assert path == tmp_path / "ranran_50.csv"
     e = jd.load_nees(source, trim=True)
@@ -224,14 +215,14 @@ def test_convert_writes_atomically(tmp_path, monkeypatch):
         raise OSError("disk full")
 
     monkeypatch.setattr(convert, "write_csv", failing)
-    source = _data("nees_dyke_mr_damper", "ranran_50.csv")
+    source = shared_data("nees_dyke_mr_damper", "ranran_50.csv")
     with pytest.raises(OSError, match="disk full"):
         jd.convert_dataset("nees", source, tmp_path)
     assert list(tmp_path.iterdir()) == []
 
 
 def test_convert_boucwen_writes_a_system_record(tmp_path):
-    source = _data("boucwen_benchmark", "train.h5")
+    source = shared_data("boucwen_benchmark", "train.h5")
     (path,) = jd.convert_dataset("boucwen", source, tmp_path)
     assert path.name == "boucwen_benchmark_train.csv"
     text = path.read_text(encoding="utf-8")
@@ -250,7 +241,7 @@ def test_convert_boucwen_writes_a_system_record(tmp_path):
 
 
 def test_convert_rejects_bad_arguments(tmp_path):
-    utfsm = _data("utfsm_mr_damper", "sine")
+    utfsm = shared_data("utfsm_mr_damper", "sine")
     with pytest.raises(ValueError, match=r"unknown dataset 'UTFSM'; .*'utfsm', 'nees'"):
         jd.convert_dataset("UTFSM", utfsm, tmp_path)
     with pytest.raises(
@@ -261,7 +252,7 @@ def test_convert_rejects_bad_arguments(tmp_path):
         jd.convert_dataset("utfsm", utfsm / "10mm1Hz0A.txt", tmp_path / "out")
     with pytest.raises(ValueError, match=r"no file named <amplitude>mm"):
         jd.convert_dataset("utfsm", tmp_path, tmp_path / "out")
-    nees = _data("nees_dyke_mr_damper")
+    nees = shared_data("nees_dyke_mr_damper")
     with pytest.raises(ValueError, match=r"is a folder; .*did you mean .*ranran_50"):
         jd.convert_dataset("nees", nees, tmp_path / "out")
     (tmp_path / "file").write_text("")

@@ -5,7 +5,6 @@ missing data is a failure, not a skip.
 """
 
 import re
-from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -15,16 +14,7 @@ import pytest
 import jaxmr
 import jaxmr.data as jd
 
-DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
-
-
-def _data(*parts: str) -> Path:
-    path = DATA.joinpath(*parts)
-    assert path.exists(), (
-        f"test data missing: {path}. The public datasets must lie in ../shared/data "
-        "beside the repository (see that folder's README)."
-    )
-    return path
+from .helpers import shared_data
 
 
 def _sine(n=2001, rate=1000.0, amplitude=0.01, frequency=2.0):
@@ -333,7 +323,7 @@ def test_csv_warns_about_millimetres(tmp_path):
 
 
 def test_load_utfsm():
-    experiments = jd.load_utfsm(_data("utfsm_mr_damper", "sine"))
+    experiments = jd.load_utfsm(shared_data("utfsm_mr_damper", "sine"))
     assert len(experiments) == 30
     measured = {0.002: 1.6e-3, 0.005: 4.55e-3, 0.010: 9.7e-3, 0.025: 24.5e-3}  # m
     pairs = {(0.002, 5.0), (0.005, 3.0), (0.010, 1.0)}
@@ -368,7 +358,9 @@ def test_load_utfsm_file_velocity_is_a_backward_difference():
     e_file, e_central = (
         next(
             e
-            for e in jd.load_utfsm(_data("utfsm_mr_damper", "sine"), velocity=kind)
+            for e in jd.load_utfsm(
+                shared_data("utfsm_mr_damper", "sine"), velocity=kind
+            )
             if e.name == "10mm1Hz0x5A"
         )
         for kind in ("file", "central")
@@ -381,7 +373,7 @@ def test_load_utfsm_file_velocity_is_a_backward_difference():
 
 
 def test_load_nees():
-    path = _data("nees_dyke_mr_damper", "ranran_50.csv")
+    path = shared_data("nees_dyke_mr_damper", "ranran_50.csv")
     e = jd.load_nees(path)
     assert len(e) == 74068
     assert e.sample_rate == pytest.approx(3004.8, rel=1e-9)
@@ -399,7 +391,7 @@ def test_load_nees():
 
 def test_load_boucwen_benchmark():
     t, u, y, fs = jd.load_boucwen_benchmark_train(
-        _data("boucwen_benchmark", "train.h5")
+        shared_data("boucwen_benchmark", "train.h5")
     )
     assert t.shape == u.shape == y.shape == (40960,)
     assert fs == 750.0 and t[1] == pytest.approx(1 / 750)
@@ -407,7 +399,7 @@ def test_load_boucwen_benchmark():
     assert np.max(np.abs(y)) < 5e-3  # m
     for kind, n in (("multisine", 8192), ("sinesweep", 153000)):
         record = jd.load_boucwen_benchmark_input(
-            _data("boucwen_benchmark", f"uval_{kind}.mat")
+            shared_data("boucwen_benchmark", f"uval_{kind}.mat")
         )
         assert record.kind == kind
         assert record.t.shape == record.u.shape == (n,)

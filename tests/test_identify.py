@@ -9,6 +9,8 @@ import pytest
 
 import jaxmr
 
+from .helpers import dahl_guess, dahl_runs
+
 CURRENTS = (0.0, 0.25, 0.5, 0.75, 1.0)
 
 
@@ -88,36 +90,9 @@ def test_eight_brake_parameters_flagged_as_not_identified(synthetic):
     assert not result.converged
 
 
-def _dahl_runs(rhos, k_ws):
-    """One experiment per (rho, k_w): a Dahl brake, 1 Hz ±3.5°, one cycle, 1 % noise."""
-    ts = jnp.linspace(0.0, 1.0, 101)
-    motion = jaxmr.Sine(jnp.deg2rad(20.0), 1.0)
-    rng = np.random.default_rng(1)
-    runs = []
-    for rho, k_w in zip(rhos, k_ws):
-        sol = jaxmr.simulate(jaxmr.Dahl(k_x=0.01, k_w=k_w, rho=rho), motion, 0.0, ts)
-        force = np.asarray(sol.force)
-        runs.append(
-            SimpleNamespace(
-                t=np.asarray(ts),
-                x=np.asarray(sol.displacement),
-                v=np.asarray(sol.velocity),
-                current=np.zeros(ts.shape),
-                force=force + 0.01 * np.std(force) * rng.standard_normal(force.shape),
-                name=f"rho={rho}",
-            )
-        )
-    return runs
-
-
-def _dahl_guess():
-    P = jaxmr.Positive
-    return jaxmr.Dahl(k_x=P(0.02), k_w=P(2.0), rho=P(8.0))
-
-
 def test_fit_each_fits_independent_runs_in_one_batch():
     rhos, k_ws = (3.0, 5.0, 8.0, 12.0), (1.0, 2.0, 3.0, 4.0)
-    results = jaxmr.fit_each(_dahl_guess(), _dahl_runs(rhos, k_ws), progress=False)
+    results = jaxmr.fit_each(dahl_guess(), dahl_runs(rhos, k_ws), progress=False)
     assert len(results) == 4
     for result, rho, k_w in zip(results, rhos, k_ws):
         values = dict(zip(result.names, result.values))
@@ -128,15 +103,15 @@ def test_fit_each_fits_independent_runs_in_one_batch():
 
 
 def test_multistart_keeps_the_best_and_interrupt_keeps_progress():
-    runs = _dahl_runs((5.0,), (3.0,))
-    result = jaxmr.fit(_dahl_guess(), runs, starts=3, spread=4.0, progress=False)
+    runs = dahl_runs((5.0,), (3.0,))
+    result = jaxmr.fit(dahl_guess(), runs, starts=3, spread=4.0, progress=False)
     assert result.converged and result.nrmse[0] < 0.013
 
     def interrupt(step, loss):
         if step == 3:
             raise KeyboardInterrupt
 
-    stopped = jaxmr.fit(_dahl_guess(), runs, progress=interrupt)
+    stopped = jaxmr.fit(dahl_guess(), runs, progress=interrupt)
     assert stopped.reason.startswith("interrupted at step 3")
     assert stopped.num_steps == 3 and not stopped.converged
     # The best parameters so far are kept: better than the start.
@@ -149,7 +124,7 @@ def test_fit_warns_in_float32(monkeypatch):
     monkeypatch.setattr(jax.numpy, "result_type", lambda *a: np.dtype("float32"))
     with pytest.warns(UserWarning, match="float32"):
         with pytest.raises(Exception):  # noqa: B017 - only the warning matters here
-            jaxmr.fit(_dahl_guess(), [], progress=False)
+            jaxmr.fit(dahl_guess(), [], progress=False)
 
 
 def test_fit_each_shards_over_two_host_devices():
@@ -163,10 +138,10 @@ def test_fit_each_shards_over_two_host_devices():
         import jax
         jax.config.update("jax_enable_x64", True)
         import numpy as np, jaxmr
-        from tests.test_identify import _dahl_runs, _dahl_guess
+        from tests.helpers import dahl_guess, dahl_runs
         assert jax.local_device_count() == 2
-        runs = _dahl_runs((3.0, 8.0), (1.0, 3.0))  # one run per device
-        results = jaxmr.fit_each(_dahl_guess(), runs, progress=False)
+        runs = dahl_runs((3.0, 8.0), (1.0, 3.0))  # one run per device
+        results = jaxmr.fit_each(dahl_guess(), runs, progress=False)
         for result, rho in zip(results, (3.0, 8.0)):
             assert abs(dict(zip(result.names, result.values))[".rho"] / rho - 1) < 0.02
         print("sharded fit ok")

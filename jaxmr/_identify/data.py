@@ -23,11 +23,11 @@ import numpy as np
 from .._custom_types import Array, Bool, Float, Int
 from .._integrate import FixedStep
 from .._signal import _hermite, _hermite_slope
+from ..data._experiment import check_columns
 
-# Default step limits (see `StepPolicy`).
-MAX_STEP = 2.5e-3  # s
-MAX_TRAVEL_LINEAR = 2.5e-5  # m
-MAX_TRAVEL_ROTARY = 5e-5  # rad
+# Default step limits per kind of device (see `StepPolicy`): (longest step [s], most
+# travel per step [m or rad], None: no travel limit).
+DEFAULT_LIMITS = {"linear": (2.5e-3, 2.5e-5), "rotary": (5e-4, None)}
 
 
 class StepPolicy(eqx.Module):
@@ -36,88 +36,89 @@ class StepPolicy(eqx.Module):
 
     Each sample interval is divided into the fewest equal steps for which a step is at
     most `max_step` [s] long and the piston (rotor) travels at most `max_travel` at the
-    larger of the interval's end velocities. Hysteretic
-    states relax over a displacement, not a time (their rates scale with $|v|$), so
-    travel is what bounds the error; the time limit covers current dynamics and slow
-    motions.
+    larger of the interval's end velocities.
 
-    Measured: the published UTFSM Spencer model at 0 A, whose force jumps within
-    30 µm of travel after a reversal, needs 25 µm (1 ms steps at 77 mm/s diverge); on
-    the 30 UTFSM records the default policy takes 0.69 M steps where uniform steps of
-    25 µm at each record's peak speed take 1.14 M, for the same loss to 4 digits.
-    The SAS brake (γ ≪ β: errors grow where z crosses zero just after a reversal, at
-    low speed) at 1 Hz, ±3.5° sampled at 250 Hz–1 kHz is within 3.5e-5 of its peak
-    torque of an adaptive Dopri8 solve at rtol 1e-8 with 5e-5 rad (2e-4 rad left
-    1.9e-3; tests/test_identify_engine.py asserts < 1e-4), far below measurement
-    noise (~1 %).
+    The defaults differ by device, each measured where it applies:
+
+    - linear dampers: 2.5 ms and 25 µm. A hysteretic state that relaxes over a
+      displacement has rates proportional to $|v|$, so travel bounds the error where
+      the damper moves fast: the published UTFSM Spencer model at 0 A, whose force
+      jumps within 30 µm of travel after a reversal, needs 25 µm (1 ms steps at
+      77 mm/s diverge). On the 30 UTFSM records this takes 0.69 M steps, where
+      uniform steps of 25 µm at each record's peak speed take 1.14 M, for the same
+      loss to 4 digits. 2.5 ms integrates a coil lag of 190 1/s at η·h ≤ 0.5.
+    - rotary brakes: 0.5 ms and no travel limit. The SAS brake (γ ≪ β) errs most
+      where z crosses zero just after a reversal, at low speed, so time bounds the
+      error there (travel-limited steps of 2e-4 rad, long near reversals, left
+      1.9e-3 of the peak torque); and a brake may turn continuously (a rotor at
+      150 rpm), where a travel limit would take thousands of steps per sample for
+      nothing. At 1 Hz, ±3.5° sampled at 250 Hz–1 kHz the brake is then within 4e-5
+      of its peak torque of an adaptive Dopri8 solve at rtol 1e-8 (asserted < 1e-4 in
+      tests/test_identify_engine.py), far below measurement noise (~1 %).
 
     **Arguments:**
 
-    - `max_step`: the longest step [s], default 2.5 ms (a coil lag of 190 1/s is then
-      integrated at η·h ≤ 0.5).
+    - `max_step`: the longest step [s] (`None`: the device's default).
     - `max_travel`: the most travel per step, in the motion's unit ([m], or [rad] for
-      a rotary device); `None` (default): 25 µm, or 5e-5 rad for a rotary device.
+      a rotary device); `None`: the device's default.
     - `substeps`: a fixed number of steps per sample interval for every experiment
       instead (the limits are then ignored), e.g. to reproduce `FixedStep(k)`.
+    - `refinement`: every step divided into this many (see `refined`).
     """
 
-    max_step: float = eqx.field(static=True, default=MAX_STEP)
+    max_step: float | None = eqx.field(static=True, default=None)
     max_travel: float | None = eqx.field(static=True, default=None)
     substeps: int | None = eqx.field(static=True, default=None)
+    refinement: int = eqx.field(static=True, default=1)
 
     def __check_init__(self):
-        if not (math.isfinite(self.max_step) and self.max_step > 0):
-            raise ValueError(
-                f"StepPolicy: `max_step` must be > 0 [s], got {self.max_step}."
-            )
-        if self.max_travel is not None and not (
-            math.isfinite(self.max_travel) and self.max_travel > 0
-        ):
-            raise ValueError(
-                f"StepPolicy: `max_travel` must be > 0 (or None), got {self.max_travel}."
-            )
-        if self.substeps is not None and (
-            not isinstance(self.substeps, int) or self.substeps < 1
-        ):
-            raise ValueError(
-                f"StepPolicy: `substeps` must be a positive integer or None, got "
-                f"{self.substeps}."
-            )
+        for name in ("max_step", "max_travel"):
+            value = getattr(self, name)
+            if value is not None and not (math.isfinite(value) and value > 0):
+                raise ValueError(
+                    f"StepPolicy: `{name}` must be > 0 (or None), got {value}."
+                )
+        for name in ("substeps", "refinement"):
+            value = getattr(self, name)
+            if value is not None and (not isinstance(value, int) or value < 1):
+                raise ValueError(
+                    f"StepPolicy: `{name}` must be a positive integer, got {value}."
+                )
 
-    def travel(self, rotary: bool = False) -> float:
-        """The most travel per step [m or rad]."""
-        if self.max_travel is not None:
-            return self.max_travel
-        return MAX_TRAVEL_ROTARY if rotary else MAX_TRAVEL_LINEAR
-
-    def step(self, v, rotary: bool = False) -> float:
-        """The longest allowed step [s] at velocities up to max |`v`|."""
-        peak = float(np.max(np.abs(np.asarray(v)))) if np.size(v) else 0.0
-        travel = self.travel(rotary)
-        return min(self.max_step, travel / peak) if peak > 0 else self.max_step
+    def limits(self, rotary: bool = False) -> tuple[float, float | None]:
+        """(longest step [s], most travel per step or None) for a device kind."""
+        step, travel = DEFAULT_LIMITS["rotary" if rotary else "linear"]
+        step = step if self.max_step is None else self.max_step
+        travel = travel if self.max_travel is None else self.max_travel
+        return step, travel
 
     def counts(self, t, v, rotary: bool = False) -> np.ndarray:
         """Steps in each sample interval of an experiment at times `t`, velocities
-        `v`: the fewest equal steps of at most `max_step` whose travel at the larger
-        of the interval's end velocities is at most `max_travel`."""
+        `v` (see the class docstring)."""
         h = np.diff(np.asarray(t, dtype=float))
         if self.substeps is not None:
-            return np.full(h.shape, self.substeps, dtype=int)
-        speed = np.abs(np.asarray(v, dtype=float))
-        speed = np.maximum(speed[:-1], speed[1:])
+            return np.full(h.shape, self.substeps * self.refinement, dtype=int)
+        max_step, travel = self.limits(rotary)
         # A hair of slack so that an interval exactly k steps long gets k, not k + 1.
         slack = 1 - 1e-9
-        by_time = np.ceil(h / self.max_step * slack)
-        by_travel = np.ceil(h * speed / self.travel(rotary) * slack)
-        return np.maximum(1, np.maximum(by_time, by_travel)).astype(int)
+        counts = np.ceil(h / max_step * slack)
+        if travel is not None:
+            speed = np.abs(np.asarray(v, dtype=float))
+            speed = np.maximum(speed[:-1], speed[1:])
+            counts = np.maximum(counts, np.ceil(h * speed / travel * slack))
+        return (np.maximum(1, counts) * self.refinement).astype(int)
+
+    def step_travel(self, v, rotary: bool = False) -> float:
+        """The most travel of one step at the peak speed of `v` [m or rad]."""
+        max_step, travel = self.limits(rotary)
+        peak = float(np.max(np.abs(np.asarray(v)))) if np.size(v) else 0.0
+        by_time = max_step * peak / self.refinement
+        return by_time if travel is None else min(by_time, travel / self.refinement)
 
     def refined(self, factor: int) -> "StepPolicy":
         """The same policy with steps `factor` times shorter."""
-        if self.substeps is not None:
-            return StepPolicy(self.max_step, self.max_travel, self.substeps * factor)
-        travel = self.max_travel
         return StepPolicy(
-            self.max_step / factor, None if travel is None else travel / factor
+            self.max_step, self.max_travel, self.substeps, self.refinement * factor
         )
 
 
@@ -169,6 +170,7 @@ class FitData(eqx.Module):
     offsets: tuple[int, ...] = eqx.field(static=True)
     data_steps: int = eqx.field(static=True)
     kept_counts: tuple[int, ...] = eqx.field(static=True)
+    num_samples: int = eqx.field(static=True)
 
     @property
     def num_steps(self) -> int:
@@ -178,13 +180,13 @@ class FitData(eqx.Module):
     def split(self, samples) -> list[np.ndarray]:
         """A per-sample array cut into one array per experiment."""
         samples = np.asarray(samples)
-        bounds = list(self.offsets) + [self.t.shape[0]]
+        bounds = list(self.offsets) + [self.num_samples]
         return [samples[a:b] for a, b in zip(bounds[:-1], bounds[1:])]
 
     def kept_mask(self) -> np.ndarray:
         """Per sample: is it scored (not discarded)?"""
         mask = np.zeros(self.t.shape[0], dtype=bool)
-        mask[np.asarray(self.kept)] = True
+        mask[np.asarray(self.kept)[: sum(self.kept_counts)]] = True
         return mask
 
 
@@ -216,22 +218,10 @@ def _columns(e, k: int, need_force: bool):
             )
         force = np.zeros_like(t)
     force = np.asarray(force, dtype=float)
-    if t.ndim != 1 or t.shape[0] < 2:
-        raise ValueError(f"experiment {name!r}: give at least 2 samples.")
-    for label, column in (("t", t), ("x", x), ("v", v), ("input", i), ("F", force)):
-        if column.shape != t.shape:
-            raise ValueError(
-                f"experiment {name!r}: `{label}` has shape {column.shape}, `t` "
-                f"{t.shape}; give one value per sample."
-            )
-        bad = np.flatnonzero(~np.isfinite(column))
-        if bad.size:
-            raise ValueError(
-                f"experiment {name!r}: `{label}` is not finite at sample {bad[0]} "
-                f"(t = {t[min(bad[0], len(t) - 1)]:g} s); repair or drop those samples."
-            )
-    if not np.all(np.diff(t) > 0):
-        raise ValueError(f"experiment {name!r}: `t` must be strictly increasing.")
+    # The checks `Experiment` makes, for anything with these columns.
+    check_columns(
+        {"t": t, "x": x, "v": v, "input": i, "F": force}, f"experiment {name!r}"
+    )
     return name, t, x, v, i, force
 
 
@@ -283,13 +273,16 @@ def _lanes(sizes: Sequence[int], lanes: int) -> list[list[int]]:
     return content
 
 
-def default_lanes(num_experiments: int) -> int:
-    """The number of lanes `pack` uses by default (measured fastest on 2 CPU cores:
-    benchmarks/identify_speed.py)."""
-    return min(num_experiments, LANES)
-
-
+# Lanes `pack` uses by default: on the 30 UTFSM records (2 CPU cores) 8 lanes took
+# 0.44 s per residual and 2.3 s with its Jacobian, against 1.8 s / 5.5 s packed into one
+# scan and 0.67 s / 4.9 s padded (one lane per record).
 LANES = 8
+
+
+def default_lanes(num_experiments: int) -> int:
+    """The number of lanes `pack` uses by default (`LANES`, at most one per
+    experiment)."""
+    return min(num_experiments, LANES)
 
 
 def pack(
@@ -330,14 +323,13 @@ def pack(
     if lanes < 1:
         raise ValueError(f"`lanes` must be >= 1, got {lanes}.")
 
-    names, runs, substeps = [], [], []
+    names, runs = [], []
     for k, e in enumerate(experiments):
         name, t, x, v, i, force = _columns(e, k, need_force)
         r = policy.counts(t, v, bool(getattr(e, "rotary", False)))
         inputs, steps = _stage_inputs(t, x, v, i, r)
         names.append(name)
-        runs.append((t, force, inputs, steps))
-        substeps.append(r)
+        runs.append((t, force, inputs, steps, r))
 
     # Lay the experiments' steps out in lanes.
     layout = _lanes([len(run[3]) for run in runs], lanes)
@@ -349,7 +341,7 @@ def pack(
     for j, lane in enumerate(layout):
         at = 0
         for k in lane:
-            _, _, run_inputs, run_steps = runs[k]
+            _, _, run_inputs, run_steps, _ = runs[k]
             m = len(run_steps)
             inputs[j, at : at + m] = run_inputs
             step[j, at : at + m] = run_steps
@@ -365,8 +357,8 @@ def pack(
     t_all, force_all, same_run = [], [], []
     lo_index, lo_fraction, hi_index, hi_fraction, span, smooth = [], [], [], [], [], []
     total = 0
-    for k, (t, force, _, _) in enumerate(runs):
-        m, r = len(t), substeps[k]
+    for k, (t, force, _, _, r) in enumerate(runs):
+        m = len(t)
         offsets.append(total)
         sample_index.append(first_step[k] + np.append(0, np.cumsum(r)))
         t_all.append(t)
@@ -422,6 +414,7 @@ def pack(
         offsets=tuple(offsets),
         data_steps=int(sum(len(run[3]) for run in runs)),
         kept_counts=tuple(kept_counts),
+        num_samples=total,
     )
 
 
@@ -494,11 +487,16 @@ def shape_of(data: FitData) -> tuple[int, int, int, int]:
     )
 
 
+def pad_all(datas: Sequence[FitData]) -> list[FitData]:
+    """Independent problems padded to one shape (their own static fields kept)."""
+    shape = tuple(max(s) for s in zip(*(shape_of(d) for d in datas)))
+    return [pad_to(d, shape) for d in datas]
+
+
 def stack(datas: Sequence[FitData]) -> FitData:
     """Independent problems padded to one shape and stacked (axis 0: problem); the
     static fields are the first problem's (only the arrays are read under vmap)."""
-    shape = tuple(max(s) for s in zip(*(shape_of(d) for d in datas)))
-    padded = [pad_to(d, shape) for d in datas]
+    padded = pad_all(datas)
     arrays = [eqx.filter(d, eqx.is_array) for d in padded]
     static = eqx.filter(padded[0], eqx.is_array, inverse=True)
     treedef = jax.tree.structure(arrays[0])

@@ -15,7 +15,7 @@ from .._current_law import ConstantLaw, is_law
 from .._damper import Damper
 from .._hysteresis import AbstractHysteresis
 from .._parameter import free_filter
-from .data import StepPolicy, as_step_policy, pack, stack
+from .data import StepPolicy, as_step_policy, pack, pad_all, stack
 from .residual import residuals, simulate_jit
 from .result import FitResult, assemble, statistics
 from .solver import (
@@ -82,34 +82,23 @@ def _split_model(model):
     return free, static
 
 
-def _report(
-    free, static, data, loss, history, steps, reason, interrupted, refine, threshold
-):
-    """The `FitResult` at the best parameters: fit statistics from a Jacobian with
-    `refine` times shorter steps (the fixed step's derivative converges more slowly
-    than its force: d/dγ of the brake was 16 % off at 0.5 ms steps for n < 1)."""
-    model = eqx.combine(free, static)
-    simulated = np.asarray(simulate_jit(model, data))
-    # An interrupted fit reports at once, from the fit's own Jacobian.
-    stats_data = data if refine is None or interrupted else refine()
-    stats = statistics(
-        residuals, free, static, stats_data, None, len(np.asarray(data.kept))
-    )
-    kept = data.kept_mask()
+def _report(free, static, data, outcome, stats_data, threshold):
+    """The `FitResult` at the best parameters, its statistics from `stats_data` (the
+    data with shorter steps: the fixed step's derivative converges more slowly than
+    its force, d/dγ of the brake was 16 % off at 0.5 ms steps for n < 1)."""
+    simulated = np.asarray(simulate_jit(eqx.combine(free, static), data))
+    n_obs = sum(data.kept_counts)
+    stats = statistics(residuals, free, static, stats_data, None, n_obs)
     return assemble(
         free,
         static,
         data.split(simulated),
         data.split(np.asarray(data.force)),
-        data.split(kept),
+        data.split(data.kept_mask()),
         data.names,
         stats,
-        loss,
-        history,
-        steps,
-        reason,
+        outcome,
         threshold,
-        interrupted,
     )
 
 
@@ -210,7 +199,7 @@ def fit(
         models = list(starts)
         frees = [eqx.filter(m, free_filter(m)) for m in models]
         ys = jax.tree.map(lambda *xs: jnp.stack(xs), *frees)
-    best_y, best_loss, history, steps, reasons, interrupted = iterate(
+    best_y, outcomes = iterate(
         solver,
         divide(ys, scale),
         (_scaled_residuals, static, data, scale),
@@ -220,29 +209,24 @@ def fit(
         ftol,
         progress_printer(progress),
     )
-    best = int(np.argmin(np.where(np.isfinite(best_loss), best_loss, np.inf)))
-    free_best = jax.tree.map(lambda a: a[best], multiply(best_y, scale))
-    refined = _refined_data(experiments, policy, options, statistics_refinement)
+    losses = [o.loss if np.isfinite(o.loss) else np.inf for o in outcomes]
+    best = int(np.argmin(losses))
+    outcome = outcomes[best]
+    # An interrupted fit reports at once, from the fit's own Jacobian.
+    refine = statistics_refinement > 1 and not outcome.interrupted
+    stats_data = (
+        pack(experiments, policy.refined(statistics_refinement), **options)
+        if refine
+        else data
+    )
     return _report(
-        free_best,
+        jax.tree.map(lambda a: a[best], multiply(best_y, scale)),
         static,
         data,
-        float(best_loss[best]),
-        history,
-        steps,
-        reasons[best],
-        interrupted,
-        refined,
+        outcome,
+        stats_data,
         identifiability_threshold,
     )
-
-
-def _refined_data(experiments, policy, options, factor):
-    """A function giving the data packed with `factor` times shorter steps (built only
-    when the statistics are computed)."""
-    if factor <= 1:
-        return None
-    return lambda: pack(experiments, policy.refined(factor), **options)
 
 
 def fit_each(
@@ -302,12 +286,11 @@ def fit_each(
     ]
     problems = [pack([e], policy, **o) for e, o in zip(experiments, options)]
     devices = jax.local_devices()
-    count = n
-    if shard and len(devices) > 1:
-        count = -(-n // len(devices)) * len(devices)
+    sharded = shard and len(devices) > 1
+    count = -(-n // len(devices)) * len(devices) if sharded else n
     batched = stack(problems + [problems[-1]] * (count - n))
     ys = jax.tree.map(lambda a: jnp.broadcast_to(a, (count,) + a.shape), free)
-    if count != n or (shard and len(devices) > 1):
+    if sharded:
         mesh = jax.sharding.Mesh(np.array(devices), ("batch",))
         sharding = jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec("batch"))
         ys = jax.device_put(ys, sharding)
@@ -318,7 +301,7 @@ def fit_each(
     if solver is None:
         solver = FastLevenbergMarquardt(rtol=rtol, atol=atol)
     scale = column_scale(residuals, free, static, problems[0], None)
-    best_y, best_loss, history, steps, reasons, interrupted = iterate(
+    best_y, outcomes = iterate(
         solver,
         divide(ys, scale),
         (_scaled_residuals, static, batched, scale),
@@ -328,23 +311,24 @@ def fit_each(
         ftol,
         progress_printer(progress),
     )
-    results = []
-    for p in range(n):
-        refined = _refined_data(
-            [experiments[p]], policy, options[p], statistics_refinement
+    # Every problem padded to one shape (and its refined data to another): the
+    # reports then share one compiled simulation and one Jacobian, not one each.
+    padded = pad_all(problems)
+    stats_data = padded
+    if statistics_refinement > 1 and not outcomes[0].interrupted:
+        refined = policy.refined(statistics_refinement)
+        stats_data = pad_all(
+            [pack([e], refined, **o) for e, o in zip(experiments, options)]
         )
-        results.append(
-            _report(
-                jax.tree.map(lambda a, p=p: a[p], multiply(best_y, scale)),
-                static,
-                problems[p],
-                float(best_loss[p]),
-                history,
-                steps,
-                reasons[p],
-                interrupted,
-                refined,
-                identifiability_threshold,
-            )
+    best = multiply(best_y, scale)
+    return [
+        _report(
+            jax.tree.map(lambda a, p=p: a[p], best),
+            static,
+            padded[p],
+            outcomes[p],
+            stats_data[p],
+            identifiability_threshold,
         )
-    return results
+        for p in range(n)
+    ]

@@ -2,6 +2,7 @@
 identifiability, and warnings for what the data do not determine."""
 
 import dataclasses
+from typing import NamedTuple
 
 import equinox as eqx
 import jax
@@ -15,6 +16,20 @@ from .residual import value_and_jacobian_jit
 # correlation exceeds this in magnitude, is named as poorly determined.
 MAX_RELATIVE_ERROR = 1.0
 MAX_CORRELATION = 0.99
+
+
+class Outcome(NamedTuple):
+    """How the solver loop ended for one problem."""
+
+    loss: float
+    """The best loss, ½ Σ (weighted residual)²."""
+    history: tuple[float, ...]
+    """The batch's best loss after every step."""
+    steps: int
+    reason: str
+    """Why it stopped, in words."""
+    interrupted: bool
+    """Whether Ctrl-C stopped it."""
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -222,14 +237,10 @@ def assemble(
     simulated,
     measured,
     kept_masks,
-    names_of_experiments,
+    experiment_names,
     stats,
-    loss,
-    history,
-    steps,
-    reason,
+    outcome,
     threshold,
-    interrupted=False,
 ) -> "FitResult":
     """A `FitResult` from the best free variables, the simulated and measured outputs
     per experiment (lists of arrays), the samples scored, and `statistics`."""
@@ -250,6 +261,7 @@ def assemble(
         ]
     )
     weak = poorly_determined(values, std, corr, names)
+    loss, reason = outcome.loss, outcome.reason
     stopped_well = reason.startswith(("converged", "stalled"))
     sound = np.isfinite(loss) and loss > 0 and np.all(np.isfinite(rmse))
     if stopped_well and not sound:
@@ -269,11 +281,11 @@ def assemble(
         poorly_determined=tuple(weak),
         rmse=np.asarray(rmse),
         nrmse=np.asarray(nrmse),
-        experiment_names=tuple(names_of_experiments),
+        experiment_names=tuple(experiment_names),
         loss=float(loss),
-        history=tuple(history),
-        num_steps=steps,
+        history=outcome.history,
+        num_steps=outcome.steps,
         reason=reason,
         converged=bool(stopped_well and sound and not unidentified),
-        interrupted=interrupted,
+        interrupted=outcome.interrupted,
     )

@@ -20,6 +20,7 @@ import optimistix as optx
 
 from .._parameter import Bounded, Fixed, Positive, free_filter, is_parameter
 from .residual import value_and_jacobian, value_and_jacobian_jit
+from .result import Outcome
 
 
 def _silent(**kwargs) -> None:
@@ -212,8 +213,8 @@ def iterate(solver, ys, args, data_axis, max_steps, patience, ftol, report):
     the loop with the best parameters so far (`interrupted` is then True); any other
     exception propagates (a programming error is not a fit result).
 
-    Returns (best ys, best losses, history of the batch's best loss, steps, reasons,
-    interrupted).
+    Returns the best ys and one `Outcome` per member (its best loss, the history of
+    the batch's best loss, the steps taken, why it stopped, whether Ctrl-C did it).
     """
     dynamic, static_state = eqx.partition(
         _init(solver, ys, args, data_axis), eqx.is_array
@@ -277,7 +278,10 @@ def iterate(solver, ys, args, data_axis, max_steps, patience, ftol, report):
             )
         else:
             reasons.append(f"reached max_steps = {max_steps}")
-    return best_y, best_loss, history, k, reasons, interrupted
+    return best_y, [
+        Outcome(float(best_loss[j]), tuple(history), k, reasons[j], interrupted)
+        for j in range(n)
+    ]
 
 
 def progress_printer(progress, label: str = "fit"):

@@ -384,7 +384,7 @@ def fit_system(
         solver = FastLevenbergMarquardt(rtol=rtol, atol=atol)
     residuals, scaled_residuals = _closed_residuals(static, data, sim)
     scale = column_scale(residuals, free, static, None, None)
-    best_y, best_loss, history, steps, reasons, interrupted = iterate(
+    best_y, (outcome,) = iterate(
         solver,
         divide(jax.tree.map(lambda a: a[None], free), scale),
         (scaled_residuals, None, None, scale),
@@ -396,33 +396,11 @@ def fit_system(
     )
     free_best = jax.tree.map(lambda a: a[0], multiply(best_y, scale))
     return _system_result(
-        free_best,
-        static,
-        data,
-        sim,
-        residuals,
-        float(best_loss[0]),
-        tuple(history),
-        steps,
-        reasons[0],
-        identifiability_threshold,
-        interrupted,
+        free_best, static, data, sim, residuals, outcome, identifiability_threshold
     )
 
 
-def _system_result(
-    free,
-    static,
-    data,
-    sim,
-    residuals,
-    loss,
-    history,
-    steps,
-    reason,
-    threshold,
-    interrupted,
-) -> FitResult:
+def _system_result(free, static, data, sim, residuals, outcome, threshold) -> FitResult:
     model = unwrap(eqx.combine(free, static))
     simulated, _ = _simulate_records_jit(model, data, sim)
     mask = np.asarray(data.mask) > 0
@@ -436,10 +414,6 @@ def _system_result(
         list(mask),
         data.names,
         stats,
-        loss,
-        history,
-        steps,
-        reason,
+        outcome,
         threshold,
-        interrupted,
     )

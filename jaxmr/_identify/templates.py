@@ -167,7 +167,7 @@ def data_scales(experiments: Sequence) -> DataScales:
     )
     policy = StepPolicy()
     floor = STEPS_PER_SATURATION * max(
-        policy.step(c[2], bool(getattr(e, "rotary", False))) * np.max(np.abs(c[2]))
+        policy.step_travel(c[2], bool(getattr(e, "rotary", False)))
         for c, e in zip(columns, experiments)
     )
     saturations = sorted(
