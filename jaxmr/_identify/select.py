@@ -155,19 +155,16 @@ def screening_end(e, discard: float = 0.0) -> float:
     """The time [s] up to which `e` is used for screening (see `SCREEN_CROSSINGS`)."""
     t, x = np.asarray(e.t, float), np.asarray(e.x, float)
     start = t[0] + discard
+    centre, band = 0.5 * (np.max(x) + np.min(x)), 0.1 * np.ptp(x)
     after = t >= start
-    centre = 0.5 * (np.max(x) + np.min(x))
-    band = 0.2 * 0.5 * np.ptp(x)
-    side, count, end = 0, 0, t[-1]
-    for when, value in zip(t[after], x[after]):
-        now = 1 if value > centre + band else (-1 if value < centre - band else 0)
-        if now and now != side:
-            if side:
-                count += 1
-            side = now
-            if count >= SCREEN_CROSSINGS:
-                end = when
-                break
+    side = np.where(x > centre + band, 1, np.where(x < centre - band, -1, 0))[after]
+    outside = np.flatnonzero(side)  # samples beyond the band, on either side
+    crossings = outside[1:][np.diff(side[outside]) != 0]
+    end = (
+        t[after][crossings[SCREEN_CROSSINGS - 1]]
+        if len(crossings) >= SCREEN_CROSSINGS
+        else t[-1]
+    )
     return float(min(t[-1], max(end, start + SCREEN_DURATION)))
 
 

@@ -326,6 +326,20 @@ def lugre(experiments: Sequence) -> LuGre:
     )
 
 
+def _spencer_start(s: DataScales) -> dict:
+    r"""What the Spencer templates' starts share: $c_0(i)$ and $c_1(i)$ laws, $c_1 =
+    10 f / v_\mathrm{amp}$ (the low-velocity roll-off at a tenth of the velocity
+    amplitude), $k_0$ fixed at 0 and $A = 1/x_s$ fixed."""
+    f_lo, f_hi = s.hysteretic_force
+    rolloff = 0.1 * s.velocity
+    return dict(
+        c0=_law(*s.hysteretic_viscous, s),
+        k0=Fixed(0.0),
+        c1=_law(f_lo / rolloff, f_hi / rolloff, s),
+        A=Fixed(1.0 / s.saturation),
+    )
+
+
 def spencer(experiments: Sequence) -> Spencer:
     r"""Spencer's model with $\alpha(i)$, $c_0(i)$, $c_1(i)$ linear in the input
     (current or voltage; no input filter). $A = 1/x_s$ fixed, $\beta = \gamma = A/2$,
@@ -333,20 +347,15 @@ def spencer(experiments: Sequence) -> Spencer:
     v_\mathrm{amp}$ puts the low-velocity roll-off at a tenth of the velocity
     amplitude. $k_0$, $k_1$, $x_0$ fixed at 0 (no accumulator)."""
     s = data_scales(experiments)
-    A = 1.0 / s.saturation
-    f_lo, f_hi = s.hysteretic_force
-    rolloff = 0.1 * s.velocity
+    half_A = 0.5 / s.saturation
     return Spencer(
-        alpha=_law(f_lo, f_hi, s),
-        c0=_law(*s.hysteretic_viscous, s),
-        k0=Fixed(0.0),
-        c1=_law(f_lo / rolloff, f_hi / rolloff, s),
+        alpha=_law(*s.hysteretic_force, s),
         k1=Fixed(0.0),
         x0=Fixed(0.0),
-        gamma=Positive(0.5 * A),
-        beta=Positive(0.5 * A),
-        A=Fixed(A),
+        gamma=Positive(half_A),
+        beta=Positive(half_A),
         n=Positive(2.0),
+        **_spencer_start(s),
     )
 
 
@@ -370,28 +379,23 @@ def _saturation_law(value: float, scales: DataScales):
 
 
 def shear_thinning_spencer(experiments: Sequence) -> ShearThinningSpencer:
-    r"""Spencer's model with shear-thinning dashpots and per-current laws: $lpha(i)$
-    quadratic, $c_0(i)$, $c_1(i)$ linear, $eta(i)$, $\gamma(i)$ exponential in the
+    r"""Spencer's model with shear-thinning dashpots and per-current laws: $\alpha(i)$
+    quadratic, $c_0(i)$, $c_1(i)$ linear, $\beta(i)$, $\gamma(i)$ exponential in the
     input (the structure of the published UTFSM model, which needed them), the
     accumulator $k_1$ and its offset $x_0$ free, $c_0$ thinning with velocity
     ($e_0$, halving at the velocity amplitude to start; $e_1$ = 0 fixed, see
-    `ShearThinningSpencer`). $A = 1/x_s$ and $n = 2$ fixed, $eta = \gamma = A/2$ to
+    `ShearThinningSpencer`). $A = 1/x_s$ and $n = 2$ fixed, $\beta = \gamma = A/2$ to
     start, $k_0$ fixed at 0; the rest as `spencer`."""
     s = data_scales(experiments)
-    A = 1.0 / s.saturation
-    f_lo, f_hi = s.hysteretic_force
-    rolloff = 0.1 * s.velocity
+    half_A = 0.5 / s.saturation
     return ShearThinningSpencer(
-        alpha=_curved_law(f_lo, f_hi, s),
-        c0=_law(*s.hysteretic_viscous, s),
-        k0=Fixed(0.0),
-        c1=_law(f_lo / rolloff, f_hi / rolloff, s),
+        alpha=_curved_law(*s.hysteretic_force, s),
         k1=Positive(FLOOR * s.force / s.displacement),
         x0=0.0,
-        gamma=_saturation_law(0.5 * A, s),
-        beta=_saturation_law(0.5 * A, s),
-        A=Fixed(A),
+        gamma=_saturation_law(half_A, s),
+        beta=_saturation_law(half_A, s),
         n=Fixed(2.0),
+        **_spencer_start(s),
         e0=Positive(1.0 / s.velocity),
         e1=Fixed(0.0),
     )

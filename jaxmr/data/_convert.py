@@ -123,14 +123,19 @@ def _utfsm_files(source: Path) -> list[_File]:
     return files
 
 
-def _nees_check(source: Path) -> None:
+def _file_source(dataset: str, source: Path, expected: str, citation: str) -> None:
+    """Refuse a folder where the dataset is one file (`expected`), naming it."""
     if source.is_dir():
-        inside = source / "ranran_50.csv"
+        inside = source / expected
         hint = f" (did you mean {str(inside)!r}?)" if inside.is_file() else ""
         raise ValueError(
-            f"convert_dataset('nees'): {str(source)!r} is a folder; pass the CSV file "
-            f"ranran_50.csv itself{hint}. Download: {_NEES_CITATION}."
+            f"convert_dataset({dataset!r}): {str(source)!r} is a folder; pass the file "
+            f"{expected} itself{hint}. Download: {citation}."
         )
+
+
+def _nees_check(source: Path) -> None:
+    _file_source("nees", source, "ranran_50.csv", _NEES_CITATION)
 
 
 def _nees_names(source: Path) -> list[str]:
@@ -158,13 +163,7 @@ def _nees_files(source: Path) -> list[_File]:
 
 
 def _boucwen_check(source: Path) -> None:
-    if source.is_dir():
-        inside = source / "train.h5"
-        hint = f" (did you mean {str(inside)!r}?)" if inside.is_file() else ""
-        raise ValueError(
-            f"convert_dataset('boucwen'): {str(source)!r} is a folder; pass the HDF5 "
-            f"file train.h5 itself{hint}. Download: {_BOUCWEN_CITATION}."
-        )
+    _file_source("boucwen", source, "train.h5", _BOUCWEN_CITATION)
 
 
 def _boucwen_names(source: Path) -> list[str]:
