@@ -1,0 +1,174 @@
+"""Identification speed and accuracy on the 30 UTFSM sine tests (issue 9).
+
+Measures, in one run:
+
+- `simulated_steps_per_data_step`: RK4 steps simulated per evaluation over the steps
+  the records need at their own step policy, for the packed layout (the default) and
+  for the padded one (a lane per record, each as long as the longest);
+- `residual_seconds`, `jacobian_seconds` and `jacobian_cost_in_residuals` (the
+  residual with its forward-mode Jacobian over the residual alone), compiled first,
+  median of 3, for both layouts, with the data-scaled ShearThinningSpencer start;
+- `seconds_joint_fit`: that template fitted jointly to all 30 whole records (the
+  files' smoothing and discarded first cycle), compilation included, and its median
+  NRMSE on the 30 against the published model's (smoothed like the data and raw);
+- `seconds_auto`: the whole `jaxmr fit` command (default `--model auto`) on the 30
+  files converted to canonical CSV, compilation included, and the chosen model's
+  median NRMSE on all 30.
+
+    python benchmarks/identify_speed.py --json benchmarks/results/identify_speed.json
+
+Pass `--skip-auto` to leave out the (minutes-long) command-line run. Reads the data
+from ../shared/data beside the repository.
+"""
+
+import argparse
+import json
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import jax
+
+jax.config.update("jax_enable_x64", True)
+
+import equinox as eqx  # noqa: E402
+import numpy as np  # noqa: E402
+
+import jaxmr  # noqa: E402
+import jaxmr.data as jd  # noqa: E402
+from jaxmr._identify.data import pack  # noqa: E402
+from jaxmr._identify.residual import (  # noqa: E402
+    residuals,
+    residuals_jit,
+    value_and_jacobian_jit,
+)
+from jaxmr._parameter import free_filter  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+UTFSM = ROOT.parent / "shared" / "data" / "utfsm_mr_damper" / "sine"
+
+
+def _timed(function, repeats=3):
+    jax.block_until_ready(function())  # compile
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        jax.block_until_ready(function())
+        times.append(time.perf_counter() - start)
+    return statistics.median(times)
+
+
+def layouts(experiments, discard, smoothing):
+    model = jaxmr.MODEL_TEMPLATES["shear_thinning_spencer"](experiments)
+    free, static = eqx.partition(model, free_filter(model))
+    out = {"num_parameters": int(sum(np.size(x) for x in jax.tree.leaves(free)))}
+    for name, lanes in (("packed", None), ("padded", len(experiments))):
+        data = pack(experiments, discard=discard, smoothing=smoothing, lanes=lanes)
+        residual = _timed(lambda d=data: residuals_jit(free, static, d))
+        jacobian = _timed(
+            lambda d=data: value_and_jacobian_jit(residuals, free, static, d, None)
+        )
+        out[name] = {
+            "lanes": int(data.step.shape[0]),
+            "simulated_steps": data.num_steps,
+            "data_steps": data.data_steps,
+            "simulated_steps_per_data_step": data.num_steps / data.data_steps,
+            "residual_seconds": residual,
+            "jacobian_seconds": jacobian,
+            "jacobian_cost_in_residuals": jacobian / residual,
+        }
+        print(name, out[name], flush=True)
+    return out
+
+
+def joint_fit(experiments, discard, smoothing, published):
+    start = time.perf_counter()
+    model = jaxmr.MODEL_TEMPLATES["shear_thinning_spencer"](experiments)
+    result = jaxmr.fit(
+        model, experiments, discard=discard, smoothing=smoothing, progress=False
+    )
+    seconds = time.perf_counter() - start
+    scores = jaxmr.record_nrmse(
+        result.model, experiments, discard=discard, smoothing=smoothing
+    )
+    out = {
+        "seconds_joint_fit": seconds,
+        "joint_fit_steps": result.num_steps,
+        "joint_fit_reason": result.reason,
+        "joint_fit_median_nrmse": float(np.median(scores)),
+        "joint_fit_better_than_published": int(np.sum(scores < published)),
+    }
+    print(out, flush=True)
+    return out
+
+
+def auto(experiments, discard, smoothing):
+    with tempfile.TemporaryDirectory() as folder:
+        files = jd.convert_dataset("utfsm", UTFSM, Path(folder) / "csv")
+        out = Path(folder) / "auto.json"
+        start = time.perf_counter()
+        subprocess.run(
+            [
+                sys.executable,
+                "-c",
+                "import sys, jaxmr._cli; sys.exit(jaxmr._cli.main())",
+                "fit",
+                "--out",
+                str(out),
+                *map(str, files),
+            ],
+            check=True,
+            stdout=subprocess.DEVNULL,
+        )
+        seconds = time.perf_counter() - start
+        model = jaxmr.load_model(out)
+        report = json.loads(out.read_text())["report"]
+    scores = jaxmr.record_nrmse(
+        model, experiments, discard=discard, smoothing=smoothing
+    )
+    result = {
+        "seconds_auto": seconds,
+        "auto_choice": report["template"],
+        "auto_median_nrmse_all_30": float(np.median(scores)),
+        "auto_ranking": report["selection"]["ranking"],
+    }
+    print(result, flush=True)
+    return result
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--json", type=Path, help="write the figures here")
+    parser.add_argument("--skip-auto", action="store_true")
+    args = parser.parse_args()
+    experiments = jd.load_utfsm(UTFSM)
+    discard = jd.utfsm_first_cycle(experiments)
+    smoothing = jd.utfsm_smoothing(experiments)
+    published = jaxmr.record_nrmse(
+        jaxmr.utfsm_spencer(), experiments, discard=discard, smoothing=smoothing
+    )
+    raw = jaxmr.record_nrmse(jaxmr.utfsm_spencer(), experiments, discard=discard)
+    figures = {
+        "published_median_nrmse_smoothed": float(np.median(published)),
+        "published_median_nrmse_raw": float(np.median(raw)),
+        "layouts": layouts(experiments, discard, smoothing),
+    }
+    packed = figures["layouts"]["packed"]
+    figures["simulated_steps_per_data_step"] = packed["simulated_steps_per_data_step"]
+    figures["jacobian_cost_in_residuals"] = packed["jacobian_cost_in_residuals"]
+    figures.update(joint_fit(experiments, discard, smoothing, published))
+    if not args.skip_auto:
+        figures.update(auto(experiments, discard, smoothing))
+    figures["speedup_vs_scipy_fd"] = None  # not measured yet (see benchmarks/README)
+    text = json.dumps(figures, indent=2, default=float)
+    print(text)
+    if args.json:
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        args.json.write_text(text)
+
+
+if __name__ == "__main__":
+    main()
