@@ -144,7 +144,8 @@ def fit(
     `jaxmr.Positive` or `jaxmr.Bounded` to constrain it.
 
     Stopping: LM's own test (`rtol`, `atol`), or stalled progress — the best loss has
-    not improved by a relative `ftol` in `patience` steps — or `max_steps`, or a
+    not improved by a relative `ftol` in `patience` steps, or in 3 accepted steps
+    (steps that lowered it) — or `max_steps`, or a
     failed solve (reported as failed). The default `ftol = 1e-4` is far below what
     noise makes significant (the loss of N residuals at the noise floor fluctuates by
     ~sqrt(2/N), 1.4 % for N = 10 000). Ctrl-C stops the fit with the best parameters so

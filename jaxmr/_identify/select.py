@@ -209,7 +209,9 @@ def compare_models(
     $\mathrm{NRMSE} = \mathrm{RMSE}/\mathrm{std}(F)$ per held-out experiment, the
     ranking by its median (robust to one odd test): finalists first, then the
     screened rest. A candidate that fails (its template cannot scale to the data, or
-    its fit raises) is ranked last with the reason.
+    its fit raises) is ranked last with the reason. The results' standard errors are
+    from each fit's own Jacobian (`statistics_refinement=1` unless given): rank here,
+    refit the chosen model (`select_model` does) for its statistics.
 
     **Arguments:**
 
@@ -330,12 +332,16 @@ def compare_models(
         )
         start = time.perf_counter()
         try:
+            # The finalists' standard errors are not reported (`select_model` refits
+            # the winner): their own Jacobian serves, not a refined one.
+            kwargs = dict(fit_kwargs)
+            kwargs.setdefault("statistics_refinement", 1)
             result = fit(
                 screened.result.constrained,
                 train,
                 discard=discard,
                 smoothing=smoothing,
-                **fit_kwargs,
+                **kwargs,
             )
             test_rmse, test_nrmse = _score(
                 result.model, test, masks, test_smoothing, integrator
