@@ -13,12 +13,15 @@ Measures, in one run:
   NRMSE on the 30 against the published model's (smoothed like the data and raw);
 - `seconds_auto`: the whole `jaxmr fit` command (default `--model auto`) on the 30
   files converted to canonical CSV, compilation included, and the chosen model's
-  median NRMSE on all 30.
+  median NRMSE on all 30;
+- the NEES record (`nees`): `jaxmr fit` on it alone (the command fits the first two
+  thirds and holds out the last), and that third's NRMSE (means removed) against
+  Spencer 1997's published parameters.
 
     python benchmarks/identify_speed.py --json benchmarks/results/identify_speed.json
 
-Pass `--skip-auto` to leave out the (minutes-long) command-line run. Reads the data
-from ../shared/data beside the repository.
+`--sections` picks parts (default all: layouts,joint,auto,nees; the command-line runs
+take minutes). Reads the data from ../shared/data beside the repository.
 """
 
 import argparse
@@ -49,6 +52,26 @@ from jaxmr._parameter import free_filter  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 UTFSM = ROOT.parent / "shared" / "data" / "utfsm_mr_damper" / "sine"
+NEES = ROOT.parent / "shared" / "data" / "nees_dyke_mr_damper" / "ranran_50.csv"
+
+
+def _fit_command(files, out):
+    """`jaxmr fit --out OUT FILES` (default: auto) in a fresh process; its seconds."""
+    start = time.perf_counter()
+    subprocess.run(
+        [
+            sys.executable,
+            "-c",
+            "import sys, jaxmr._cli; sys.exit(jaxmr._cli.main())",
+            "fit",
+            "--out",
+            str(out),
+            *map(str, files),
+        ],
+        check=True,
+        stdout=subprocess.DEVNULL,
+    )
+    return time.perf_counter() - start
 
 
 def _timed(function, repeats=3):
@@ -109,21 +132,7 @@ def auto(experiments, discard, smoothing):
     with tempfile.TemporaryDirectory() as folder:
         files = jd.convert_dataset("utfsm", UTFSM, Path(folder) / "csv")
         out = Path(folder) / "auto.json"
-        start = time.perf_counter()
-        subprocess.run(
-            [
-                sys.executable,
-                "-c",
-                "import sys, jaxmr._cli; sys.exit(jaxmr._cli.main())",
-                "fit",
-                "--out",
-                str(out),
-                *map(str, files),
-            ],
-            check=True,
-            stdout=subprocess.DEVNULL,
-        )
-        seconds = time.perf_counter() - start
+        seconds = _fit_command(files, out)
         model = jaxmr.load_model(out)
         report = json.loads(out.read_text())["report"]
     scores = jaxmr.record_nrmse(
@@ -139,11 +148,45 @@ def auto(experiments, discard, smoothing):
     return result
 
 
+def nees():
+    """`jaxmr fit` on the NEES record alone: the command holds out the last third of
+    it (fewer than 3 files); score that third against Spencer 1997's parameters
+    (means removed, the data README's protocol)."""
+    with tempfile.TemporaryDirectory() as folder:
+        (path,) = jd.convert_dataset("nees", NEES, Path(folder) / "csv")
+        out = Path(folder) / "nees.json"
+        seconds = _fit_command([path], out)
+        model = jaxmr.load_model(out)
+        report = json.loads(out.read_text())["report"]
+        record = jd.read_csv(path)
+    t = np.asarray(record.t)
+    held_out_from = float((t[-1] - t[0]) * 2 / 3)  # holdout_split's last third
+    score = lambda m: float(
+        jaxmr.record_nrmse(m, [record], discard=held_out_from, remove_mean=True)[0]
+    )
+    fitted, published = score(model), score(jaxmr.spencer_1997())
+    result = {
+        "nees_seconds": seconds,
+        "nees_choice": report["template"],
+        "nees_held_out_nrmse": fitted,
+        "nees_spencer_1997_held_out_nrmse": published,
+        "nees_improvement_over_spencer_1997": 1 - fitted / published,
+        "nees_ranking": report["selection"]["ranking"],
+    }
+    print(result, flush=True)
+    return result
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--json", type=Path, help="write the figures here")
-    parser.add_argument("--skip-auto", action="store_true")
+    parser.add_argument(
+        "--sections",
+        default="layouts,joint,auto,nees",
+        help="comma-separated: layouts, joint, auto, nees (default: all)",
+    )
     args = parser.parse_args()
+    sections = set(args.sections.split(","))
     experiments = jd.load_utfsm(UTFSM)
     discard = jd.utfsm_first_cycle(experiments)
     smoothing = jd.utfsm_smoothing(experiments)
@@ -154,14 +197,20 @@ def main():
     figures = {
         "published_median_nrmse_smoothed": float(np.median(published)),
         "published_median_nrmse_raw": float(np.median(raw)),
-        "layouts": layouts(experiments, discard, smoothing),
     }
-    packed = figures["layouts"]["packed"]
-    figures["simulated_steps_per_data_step"] = packed["simulated_steps_per_data_step"]
-    figures["jacobian_cost_in_residuals"] = packed["jacobian_cost_in_residuals"]
-    figures.update(joint_fit(experiments, discard, smoothing, published))
-    if not args.skip_auto:
+    if "layouts" in sections:
+        figures["layouts"] = layouts(experiments, discard, smoothing)
+        packed = figures["layouts"]["packed"]
+        figures["simulated_steps_per_data_step"] = packed[
+            "simulated_steps_per_data_step"
+        ]
+        figures["jacobian_cost_in_residuals"] = packed["jacobian_cost_in_residuals"]
+    if "joint" in sections:
+        figures.update(joint_fit(experiments, discard, smoothing, published))
+    if "auto" in sections:
         figures.update(auto(experiments, discard, smoothing))
+    if "nees" in sections:
+        figures.update(nees())
     figures["speedup_vs_scipy_fd"] = None  # not measured yet (see benchmarks/README)
     text = json.dumps(figures, indent=2, default=float)
     print(text)

@@ -146,6 +146,40 @@ def test_fit_writes_model_and_report(fitted, files):
         assert abs(p["value"] - value) < 5 * p["std_error"] + 1e-3 * value, p
 
 
+@pytest.mark.parametrize(
+    "model", [["--model", "dahl"], ["--model", "auto", "--candidates", "dahl"]]
+)
+def test_ctrl_c_writes_the_best_model_so_far(
+    model, files, fitted, auto, tmp_path, monkeypatch, capsys
+):
+    """Ctrl-C at the third Levenberg–Marquardt step (raised where the solver steps,
+    as a real SIGINT would be): the command writes the best model so far, says so,
+    and exits 130. The shapes are the fixtures' (the same files and template), so
+    nothing compiles again."""
+    import jaxmr._identify.solver as solver
+
+    step, calls = solver._step, []
+
+    def interrupted(*args):
+        calls.append(None)
+        if len(calls) == 3:
+            raise KeyboardInterrupt
+        return step(*args)
+
+    monkeypatch.setattr(solver, "_step", interrupted)
+    out = tmp_path / "p.json"
+    status, _ = _run(["fit", *model, "--out", out, *files])
+    assert status == 130 and len(calls) == 3
+    assert "interrupted; the best model so far is in" in capsys.readouterr().err
+    report = json.loads(out.read_text())["report"]
+    assert report["interrupted"] and "interrupted at step 3" in report["reason"]
+    # Kept: the best point of two steps, better than the template's start.
+    experiments = [jaxmr.data.read_csv(f) for f in files]
+    start = MODEL_TEMPLATES["dahl"](experiments)
+    kept = jaxmr.record_nrmse(jaxmr.load_model(out), experiments)
+    assert np.median(kept) < np.median(jaxmr.record_nrmse(start, experiments))
+
+
 def test_predict(fitted, files, tmp_path):
     _, params, _ = fitted
     out = tmp_path / "pred.csv"

@@ -303,6 +303,45 @@ def test_csv_rejects_bad_files(tmp_path, header, rows, match):
     assert str(path) in str(info.value)
 
 
+@pytest.mark.parametrize(
+    "separator, name", [(";", "semicolons"), ("\t", "tabs"), ("|", "bars")]
+)
+def test_csv_names_another_separator(tmp_path, separator, name):
+    path = tmp_path / "sep.csv"
+    rows = [r.replace(",", separator) for r in ["t,x,i,F", *_GOOD_ROWS]]
+    path.write_text("\n".join(rows) + "\n")
+    with pytest.raises(ValueError, match=f"separated by {name}; jaxmr CSV is comma"):
+        jd.read_csv(path)
+
+
+def test_csv_reads_a_byte_order_mark_and_gzip(tmp_path):
+    """What spreadsheets and archives hand over: a UTF-8 BOM before the header (it
+    made the header's first name '\\ufefft'), and a gzip-compressed file."""
+    import gzip
+
+    text = "\n".join(["# name: run", "t,x,i,F", *_GOOD_ROWS]) + "\n"
+    bom = tmp_path / "bom.csv"
+    bom.write_bytes(b"\xef\xbb\xbf" + text.encode())
+    packed = tmp_path / "run.csv.gz"
+    packed.write_bytes(gzip.compress(text.encode()))
+    for path in (bom, packed):
+        e = jd.read_csv(path)
+        assert e.name == "run"
+        np.testing.assert_array_equal(e.force, [1.0, 2.0, 3.0])
+    assert jd.read_processing(packed) == {"smoothing": None, "discard": None}
+
+
+def test_csv_names_the_file_that_is_not_text(tmp_path):
+    latin = tmp_path / "latin.csv"
+    latin.write_bytes("# Kraft in N, Weg \xb5m\nt,x,i,F\n".encode("latin-1"))
+    with pytest.raises(ValueError, match=f"{latin}: not UTF-8 text"):
+        jd.read_csv(latin)
+    broken = tmp_path / "broken.csv.gz"
+    broken.write_bytes(b"\x1f\x8b" + b"not a gzip stream")
+    with pytest.raises(ValueError, match=f"{broken}: cannot decompress"):
+        jd.read_csv(broken)
+
+
 def test_csv_without_header(tmp_path):
     path = tmp_path / "empty.csv"
     path.write_text("# only a comment\n")

@@ -41,6 +41,7 @@ units) are free text.
 """
 
 import difflib
+import gzip
 import math
 import os
 import re
@@ -161,6 +162,43 @@ def _check_header(names: list[str], where: str) -> None:
         )
 
 
+_GZIP_MAGIC = b"\x1f\x8b"
+
+
+def _lines(path: Path):
+    """The file's lines as text: UTF-8, a byte-order mark dropped (spreadsheets write
+    one), gzip-compressed files (`.csv.gz`) read through; errors name the file."""
+    with open(path, "rb") as raw:
+        compressed = raw.read(2) == _GZIP_MAGIC
+    opener = gzip.open if compressed else open
+    try:
+        with opener(path, "rt", encoding="utf-8-sig") as file:
+            yield from enumerate(file, start=1)
+    except UnicodeDecodeError as e:
+        raise ValueError(
+            f"{path}: not UTF-8 text ({e.reason} at byte {e.start}); save the file as "
+            "UTF-8 CSV (comma-separated, '.' as the decimal point)."
+        ) from None
+    except (OSError, EOFError) as e:  # a damaged gzip stream
+        if not compressed:
+            raise
+        raise ValueError(f"{path}: cannot decompress this gzip file: {e}") from None
+
+
+def _separator_hint(text: str, where: str) -> None:
+    """A header with one cell that other separators would split: say which."""
+    if "," in text:
+        return
+    for separator, name in ((";", "semicolons"), ("\t", "tabs"), ("|", "bars")):
+        if separator in text:
+            raise ValueError(
+                f"{where}: the header {text!r} is separated by {name}; jaxmr CSV is "
+                "comma-separated with '.' as the decimal point (e.g. "
+                f"pandas.read_csv(path, sep={separator!r}, decimal=',').to_csv(new, "
+                "index=False) converts it)."
+            )
+
+
 def read_csv(path: str | os.PathLike) -> Experiment:
     """Read one experiment from jaxmr's canonical CSV format (see the module docstring).
 
@@ -184,45 +222,45 @@ def read_csv(path: str | os.PathLike) -> Experiment:
     header_line = 0
     rows: list[list[float]] = []
     lines: list[int] = []
-    with open(path, encoding="utf-8") as file:
-        for number, text in enumerate(file, start=1):
-            text = text.strip()
-            if not text:
-                continue
-            if text.startswith("#"):
-                if header is None and text.startswith(SYSTEM_RECORD):
-                    raise ValueError(
-                        f"{where}: a system record (columns t, u, y: input force [N], "
-                        "output displacement [m]), as `convert_dataset('boucwen')` "
-                        "writes, not a damper experiment; read its columns with "
-                        "numpy.loadtxt as its header comments say."
-                    )
-                key, sep, value = text[1:].partition(":")
-                if sep and key.strip().lower() in ("name", "velocity"):
-                    metadata.setdefault(key.strip().lower(), value.strip())
-                continue
-            cells = [c.strip() for c in text.split(",")]
-            if header is None:
-                header, header_line = cells, number
-                _check_header(header, where)
-                continue
-            if len(cells) != len(header):
+    for number, text in _lines(path):
+        text = text.strip()
+        if not text:
+            continue
+        if text.startswith("#"):
+            if header is None and text.startswith(SYSTEM_RECORD):
                 raise ValueError(
-                    f"{where}: line {number} has {len(cells)} cells but the header "
-                    f"(line {header_line}) names {len(header)} columns "
-                    f"({', '.join(header)}); every row needs one value per column."
+                    f"{where}: a system record (columns t, u, y: input force [N], "
+                    "output displacement [m]), as `convert_dataset('boucwen')` "
+                    "writes, not a damper experiment; read its columns with "
+                    "numpy.loadtxt as its header comments say."
                 )
-            row = []
-            for name, cell in zip(header, cells):
-                try:
-                    row.append(float(cell))
-                except ValueError:
-                    raise ValueError(
-                        f"{where}: line {number}, column `{name}`: cannot read "
-                        f"{cell!r} as a number."
-                    ) from None
-            rows.append(row)
-            lines.append(number)
+            key, sep, value = text[1:].partition(":")
+            if sep and key.strip().lower() in ("name", "velocity"):
+                metadata.setdefault(key.strip().lower(), value.strip())
+            continue
+        cells = [c.strip() for c in text.split(",")]
+        if header is None:
+            _separator_hint(text, where)
+            header, header_line = cells, number
+            _check_header(header, where)
+            continue
+        if len(cells) != len(header):
+            raise ValueError(
+                f"{where}: line {number} has {len(cells)} cells but the header "
+                f"(line {header_line}) names {len(header)} columns "
+                f"({', '.join(header)}); every row needs one value per column."
+            )
+        row = []
+        for name, cell in zip(header, cells):
+            try:
+                row.append(float(cell))
+            except ValueError:
+                raise ValueError(
+                    f"{where}: line {number}, column `{name}`: cannot read "
+                    f"{cell!r} as a number."
+                ) from None
+        rows.append(row)
+        lines.append(number)
     if header is None:
         raise ValueError(f"{where}: no header line (only comments or blank lines).")
     data = np.array(rows, dtype=np.float64).reshape(len(rows), len(header))
@@ -285,37 +323,36 @@ def read_processing(path: str | os.PathLike) -> dict[str, float | None]:
     path = Path(path)
     found: dict[str, float | None] = dict.fromkeys(_PROCESSING)
     at: dict[str, int] = {}
-    with open(path, encoding="utf-8") as file:
-        for number, text in enumerate(file, start=1):
-            text = text.strip()
-            if not text.startswith("#"):
-                continue
-            key, sep, value = text[1:].partition(":")
-            key = key.strip().lower()
-            if not sep or key not in _PROCESSING:
-                continue
-            value = value.strip()
-            match = _SECONDS.match(value)
-            seconds = math.nan
-            if match is not None:
-                try:
-                    seconds = float(match["number"])
-                except ValueError:
-                    pass
-            if not math.isfinite(seconds) or seconds < 0:
-                what = _PROCESSING[key]
-                raise ValueError(
-                    f"{path}: line {number}: cannot read {value!r} as the {key} "
-                    f"{what}; expected `# {key}: <{what}> s`, a finite number >= 0 in "
-                    f"seconds followed by the unit s (e.g. `# {key}: 0.1 s`)."
-                )
-            if key in at and found[key] != seconds:
-                raise ValueError(
-                    f"{path}: line {number}: a second `# {key}:` line ({seconds!r} s) "
-                    f"contradicts line {at[key]} ({found[key]!r} s); keep one."
-                )
-            found[key] = seconds
-            at.setdefault(key, number)
+    for number, text in _lines(path):
+        text = text.strip()
+        if not text.startswith("#"):
+            continue
+        key, sep, value = text[1:].partition(":")
+        key = key.strip().lower()
+        if not sep or key not in _PROCESSING:
+            continue
+        value = value.strip()
+        match = _SECONDS.match(value)
+        seconds = math.nan
+        if match is not None:
+            try:
+                seconds = float(match["number"])
+            except ValueError:
+                pass
+        if not math.isfinite(seconds) or seconds < 0:
+            what = _PROCESSING[key]
+            raise ValueError(
+                f"{path}: line {number}: cannot read {value!r} as the {key} "
+                f"{what}; expected `# {key}: <{what}> s`, a finite number >= 0 in "
+                f"seconds followed by the unit s (e.g. `# {key}: 0.1 s`)."
+            )
+        if key in at and found[key] != seconds:
+            raise ValueError(
+                f"{path}: line {number}: a second `# {key}:` line ({seconds!r} s) "
+                f"contradicts line {at[key]} ({found[key]!r} s); keep one."
+            )
+        found[key] = seconds
+        at.setdefault(key, number)
     return found
 
 
