@@ -8,6 +8,8 @@ user's own class can be read back when it is passed in `classes`.
 """
 
 import dataclasses
+import difflib
+import inspect
 import json
 from pathlib import Path
 
@@ -44,34 +46,90 @@ def _encode(value):
     raise TypeError(f"cannot write a value of type {type(value).__name__} to JSON.")
 
 
-def _decode(value, classes):
+def _decode(value, classes, where="model"):
     if isinstance(value, dict) and "type" in value and "fields" in value:
         name = value["type"]
         if name not in classes:
             raise ValueError(
-                f"unknown model type {name!r} in the file; pass your class in "
+                f"{where}: unknown model type {name!r} in the file; pass your class in "
                 "`classes={...}` to load it."
             )
         cls = classes[name]
-        fields = {k: _decode(v, classes) for k, v in value["fields"].items()}
-        return _construct(cls, fields)
+        if not isinstance(value["fields"], dict):
+            raise ValueError(f"{where}: the fields of {name} must be a JSON object.")
+        fields = {
+            k: _decode(v, classes, f"{where}.{k}") for k, v in value["fields"].items()
+        }
+        return _construct(cls, fields, where)
     if isinstance(value, list):
-        return jnp.asarray(value, dtype=default_float())
+        try:
+            return jnp.asarray(value, dtype=default_float())
+        except (TypeError, ValueError):
+            raise ValueError(
+                f"{where}: expected numbers (a number or nested lists of them), got "
+                f"{json.dumps(value)[:80]}."
+            ) from None
     if isinstance(value, float):
         return jnp.asarray(value, dtype=default_float())
     return value
 
 
-def _construct(cls, fields):
-    # Constraint wrappers store a transformed variable (log, logit); rebuild them from
-    # the stored variable rather than through their value-taking constructors.
+def _construct(cls, fields, where):
+    """`cls` from its stored fields, with the checks construction makes: every field
+    named and known, numbers where the model holds arrays, and `__check_init__`."""
+    declared = {
+        f.name: f for f in dataclasses.fields(cls) if not f.name.startswith("_")
+    }
+    unknown = [k for k in fields if k not in declared]
+    if unknown:
+        hints = []
+        for k in unknown:
+            close = difflib.get_close_matches(k, list(declared), n=1)
+            hints.append(f"{k!r}" + (f" (did you mean {close[0]!r}?)" if close else ""))
+        raise ValueError(
+            f"{where}: {cls.__name__} has no field {', '.join(hints)}; its fields are "
+            f"{', '.join(declared)}."
+        )
+    for k, v in fields.items():
+        static = declared[k].metadata.get("static", False)
+        if not static and isinstance(v, (str, bool)):
+            raise ValueError(
+                f"{where}.{k}: expected a number, got {json.dumps(v)} (a "
+                f"{'string' if isinstance(v, str) else 'boolean'})."
+            )
     try:
-        return cls(**fields)
+        inspect.signature(cls).bind(**fields)
     except TypeError:
+        # A constraint wrapper stores its transformed variable (log, logit), which its
+        # value-taking constructor does not accept: set the stored fields, then run
+        # the class's own checks.
+        missing = [
+            k
+            for k, f in declared.items()
+            if k not in fields
+            and f.default is dataclasses.MISSING
+            and f.default_factory is dataclasses.MISSING
+        ]
+        if missing:
+            raise ValueError(
+                f"{where}: {cls.__name__} is missing the field(s) "
+                f"{', '.join(map(repr, missing))}."
+            ) from None
         obj = object.__new__(cls)
         for name, v in fields.items():
             object.__setattr__(obj, name, v)
+        check = getattr(obj, "__check_init__", None)
+        if check is not None:
+            _checked(check, where)
         return obj
+    return _checked(lambda: cls(**fields), where)
+
+
+def _checked(build, where):
+    try:
+        return build()
+    except (TypeError, ValueError) as e:
+        raise ValueError(f"{where}: {e}") from e
 
 
 def model_to_dict(model: eqx.Module) -> dict:
@@ -99,9 +157,18 @@ def save_model(model: eqx.Module, path, **extra) -> None:
 
 
 def load_model(path, classes: dict[str, type] | None = None) -> eqx.Module:
-    """Read a model written by `save_model`."""
+    """Read a model written by `save_model`.
+
+    Loading runs the checks construction runs: a missing, misspelled or extra field,
+    a string or boolean where a number belongs, or a value the class refuses (an
+    unsorted `TableLaw`) raises `ValueError` naming the file and the field (e.g.
+    `model.hysteresis.alpha.currents`).
+    """
     try:
         data = json.loads(Path(path).read_text())
     except json.JSONDecodeError as e:
         raise ValueError(f"{path}: not valid JSON ({e}).") from e
-    return model_from_dict(data, classes)
+    try:
+        return model_from_dict(data, classes)
+    except ValueError as e:
+        raise ValueError(f"{path}: {e}") from e

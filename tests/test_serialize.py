@@ -1,5 +1,7 @@
 """Models round-trip through JSON with their type."""
 
+import json
+
 import numpy as np
 import pytest
 
@@ -42,3 +44,58 @@ def test_unknown_type_and_bad_file(tmp_path):
     path.write_text("{not json")
     with pytest.raises(ValueError, match="not valid JSON"):
         jaxmr.load_model(path)
+
+
+def _edited(tmp_path, edit):
+    """A saved Bouc–Wen damper with a TableLaw, its JSON changed by `edit`."""
+    model = jaxmr.BoucWen(
+        alpha=jaxmr.TableLaw(
+            np.array([0.0, 0.5, 1.0]), np.array([100.0, 400.0, 800.0])
+        ),
+        c0=1000.0,
+        A=1.0,
+        beta=jaxmr.Positive(100.0),
+        gamma=100.0,
+        n=2.0,
+    )
+    path = tmp_path / "m.json"
+    jaxmr.save_model(model, path)
+    data = json.loads(path.read_text())
+    edit(data["model"]["fields"])
+    path.write_text(json.dumps(data))
+    return path
+
+
+@pytest.mark.parametrize(
+    "edit, match",
+    [
+        (lambda f: f.pop("c0"), r"model: BoucWen is missing the field\(s\) 'c0'"),
+        (
+            lambda f: f.update(c_0=f.pop("c0")),
+            r"model: BoucWen has no field 'c_0' \(did you mean 'c0'\?\)",
+        ),
+        (lambda f: f.update(extra=1.0), r"model: BoucWen has no field 'extra'"),
+        (lambda f: f.update(n="2"), r"model\.n: expected a number, got \"2\""),
+        (lambda f: f.update(gamma=True), r"model\.gamma: expected a number, got true"),
+        (
+            lambda f: f["alpha"]["fields"].update(currents=[1.0, 0.5, 0.0]),
+            r"model\.alpha: .*increasing",
+        ),
+        (
+            lambda f: f["beta"]["fields"].pop("log_value"),
+            r"model\.beta: Positive is missing the field\(s\) 'log_value'",
+        ),
+        (
+            lambda f: f["beta"]["fields"].update(log_value=["a"]),
+            r"model\.beta\.log_value: expected numbers",
+        ),
+    ],
+)
+def test_load_runs_the_checks_of_construction(tmp_path, edit, match):
+    """A hand-edited file is refused, naming the file and the field; before, the
+    loader fell back to an unchecked object (an uninitialised attribute that crashed
+    later, an unsorted table accepted)."""
+    path = _edited(tmp_path, edit)
+    with pytest.raises(ValueError, match=match) as info:
+        jaxmr.load_model(path)
+    assert str(path) in str(info.value)
