@@ -176,3 +176,30 @@ def test_holdout_split_in_time():
     np.testing.assert_allclose(score_from, [2.0, 2.0])
     for e in train:  # t = 0, 0.3, ..., 1.8 of 0, 0.3, ..., 3
         np.testing.assert_allclose(e.t, np.linspace(0.0, 1.8, 7))
+
+
+def test_saturation_laws_only_under_a_constant_input(brake):
+    """β(i), γ(i) of the shear-thinning template are laws when each experiment runs at
+    one current, constants when the current varies within an experiment: there a z
+    saturated at a high current lies outside the bound of a lower one and, with
+    β > γ, diverges (the NEES record did)."""
+    _, _, experiments = brake
+    per_run = MODEL_TEMPLATES["shear_thinning_spencer"](experiments)
+    assert isinstance(per_run.beta, jaxmr.ExponentialLaw)
+    assert isinstance(per_run.gamma, jaxmr.ExponentialLaw)
+    low, _, high = experiments
+    half = len(low) // 2
+    stepped = jaxmr.data.Experiment(
+        low.t,
+        low.x,
+        low.v,
+        np.where(np.arange(len(low)) < half, 0.0, 1.0),
+        low.force,
+        rotary=True,
+    )
+    varying = MODEL_TEMPLATES["shear_thinning_spencer_lag"]([stepped, high])
+    hysteresis = varying.hysteresis
+    assert isinstance(hysteresis.beta, jaxmr.Positive)
+    assert isinstance(hysteresis.gamma, jaxmr.Positive)
+    # The force laws stay: they cannot make the state diverge.
+    assert isinstance(hysteresis.alpha, jaxmr.PolynomialLaw)

@@ -370,10 +370,19 @@ def _curved_law(at_min: float, at_max: float, scales: DataScales):
     return PolynomialLaw(np.array([a, b, 0.0]))
 
 
-def _saturation_law(value: float, scales: DataScales):
-    """A positive shape parameter that may vary exponentially with the input
-    ($a e^{b i}$, $b$ = 0 to start), or a positive constant with one input level."""
-    if not scales.varying_current:
+def _saturation_law(value: float, scales: DataScales, input_varies: bool):
+    r"""A positive shape parameter ($\beta$, $\gamma$) that may vary exponentially
+    with the input ($a e^{b i}$, $b$ = 0 to start), or a positive constant with one
+    input level or an input that varies within an experiment.
+
+    Why not a law under a time-varying input: $z$ stays within
+    $\pm(A/(\beta+\gamma))^{1/n}$ only while $\beta$ and $\gamma$ hold still.
+    When the input drops and that bound shrinks, a $z$ saturated at the old input
+    lies outside it, and with $\beta > \gamma$ it then grows without bound in finite
+    time. A shear-thinning Spencer model fitted to the first part of the NEES
+    ranran_50 record ($\beta(i)$ over five decades) did exactly that on the rest.
+    Spencer et al. (1997) kept both constant for the same kind of record."""
+    if not scales.varying_current or input_varies:
         return Positive(value)
     return ExponentialLaw(Positive(value), 0.0)
 
@@ -381,19 +390,21 @@ def _saturation_law(value: float, scales: DataScales):
 def shear_thinning_spencer(experiments: Sequence) -> ShearThinningSpencer:
     r"""Spencer's model with shear-thinning dashpots and per-current laws: $\alpha(i)$
     quadratic, $c_0(i)$, $c_1(i)$ linear, $\beta(i)$, $\gamma(i)$ exponential in the
-    input (the structure of the published UTFSM model, which needed them), the
+    input (the structure of the published UTFSM model, which needed them; constant
+    when the input varies within an experiment, see `_saturation_law`), the
     accumulator $k_1$ and its offset $x_0$ free, $c_0$ thinning with velocity
     ($e_0$, halving at the velocity amplitude to start; $e_1$ = 0 fixed, see
     `ShearThinningSpencer`). $A = 1/x_s$ and $n = 2$ fixed, $\beta = \gamma = A/2$ to
     start, $k_0$ fixed at 0; the rest as `spencer`."""
     s = data_scales(experiments)
     half_A = 0.5 / s.saturation
+    varies = input_varies_in_time(experiments)
     return ShearThinningSpencer(
         alpha=_curved_law(*s.hysteretic_force, s),
         k1=Positive(FLOOR * s.force / s.displacement),
         x0=0.0,
-        gamma=_saturation_law(half_A, s),
-        beta=_saturation_law(half_A, s),
+        gamma=_saturation_law(half_A, s, varies),
+        beta=_saturation_law(half_A, s, varies),
         n=Fixed(2.0),
         **_spencer_start(s),
         e0=Positive(1.0 / s.velocity),
