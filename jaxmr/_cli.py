@@ -2,7 +2,14 @@
 
 Each subcommand is a `_add_<name>(subparsers)` that registers its arguments and a
 `_<name>(args) -> int` that runs it; `main` parses, dispatches and turns a `CLIError`
-into a message on stderr and exit status 1 (argparse's usage errors exit with 2).
+into a message on stderr and exit status 1 (argparse's usage errors exit with 2), and
+Ctrl-C into exit status 130.
+
+Every file a command writes follows one rule (`_plan_outputs`, `_write_atomically`):
+never over one of the command's inputs (not even with `--force`); over another existing
+file only with `--force`, and then the command says what it replaced; through a
+temporary file in the same directory and a rename, so that an error (a full disk) or an
+interrupt never leaves half a file.
 """
 
 import argparse
@@ -10,10 +17,13 @@ import csv
 import json
 import math
 import os
+import secrets
+import signal
 import sys
 import tempfile
+import threading
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import jax
@@ -24,6 +34,7 @@ import jaxmr.data
 import jaxmr.plot  # light: it imports matplotlib only when it draws
 from jaxmr._identify.score import nrmse, predict_all, rmse
 from jaxmr._identify.select import score_table, select_model
+from jaxmr._identify.solver import iterate, progress_printer
 from jaxmr._identify.templates import MODEL_TEMPLATES, input_varies_in_time
 
 # The candidates of `--model auto`: the richest structures first (their screening fits
@@ -40,8 +51,9 @@ class CLIError(Exception):
 def main(argv: Sequence[str | os.PathLike] | None = None) -> int:
     """Run the `jaxmr` command line with `argv` (default: `sys.argv[1:]`).
 
-    **Returns:** the exit status: 0 on success, 1 on an error reported on stderr
-    (argparse exits with 2 on a usage error).
+    **Returns:** the exit status: 0 on success, 1 on an error reported on stderr,
+    130 when interrupted by Ctrl-C (argparse exits with 2 on a usage error). With
+    `argv=None` (the `jaxmr` program) Ctrl-C is ignored once the command is done.
     """
     # jaxmr never changes JAX's configuration on import; the command line is an
     # application and wants the accuracy of double precision (Adaptive's rtol 1e-8).
@@ -53,6 +65,15 @@ def main(argv: Sequence[str | os.PathLike] | None = None) -> int:
     except CLIError as e:
         print(f"jaxmr {args.command}: error: {e}", file=sys.stderr)
         return 1
+    except KeyboardInterrupt:
+        # Every file is written whole (through a rename) or not at all.
+        print(f"\njaxmr {args.command}: interrupted", file=sys.stderr)
+        return INTERRUPTED
+    finally:
+        if argv is None and threading.current_thread() is threading.main_thread():
+            # The program ends here: a Ctrl-C in JAX's clean-up at exit would only
+            # print a traceback.
+            signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -72,6 +93,118 @@ def _parser() -> argparse.ArgumentParser:
     _add_report(subparsers)
     _add_convert(subparsers)
     return parser
+
+
+# ---------------------------------------------------------------------------------------
+# Output files: one rule for every command
+
+FORCE_HELP = "replace existing output files (never one of the inputs)"
+
+
+def _same_file(a, b) -> bool:
+    """Whether the paths `a` and `b` name one file (through links, `..`, or a
+    case-insensitive file system when both exist)."""
+    try:
+        if os.path.exists(a) and os.path.exists(b):
+            return os.path.samefile(a, b)
+        return Path(a).resolve() == Path(b).resolve()
+    except OSError:
+        return os.path.abspath(a) == os.path.abspath(b)
+
+
+def _plan_outputs(targets: Sequence[Path], inputs, *, force: bool) -> set[Path]:
+    """Check, before any work, the files a command will write: none may be one of its
+    `inputs` (with or without `--force`), none a directory, and an existing one only
+    with `force`.
+
+    **Returns:** the targets that exist, which the command replaces (and says so).
+    """
+    for target in targets:
+        for source in inputs:
+            if _same_file(target, source):
+                raise CLIError(
+                    f"{str(target)!r} would write over the input file {str(source)!r}: "
+                    "choose another --out (jaxmr never writes over its inputs, even "
+                    "with --force)"
+                )
+    existing = [t for t in targets if t.exists() or t.is_symlink()]
+    for target in existing:
+        if target.is_dir():
+            raise CLIError(f"the output path {str(target)!r} is a directory")
+    if existing and not force:
+        listed = ", ".join(repr(str(t)) for t in existing[:3])
+        more = f" and {len(existing) - 3} more" if len(existing) > 3 else ""
+        raise CLIError(
+            f"{listed}{more} already exist{'s' if len(existing) == 1 else ''}: pass "
+            "--force to replace, or choose another --out (nothing was written)"
+        )
+    return set(existing)
+
+
+def _check_writable_file(path: Path) -> None:
+    """Fail before a long fit rather than after it."""
+    parent = path.parent
+    if not parent.is_dir():
+        raise CLIError(f"the directory of the output file {str(path)!r} does not exist")
+    if not os.access(parent, os.W_OK):
+        raise CLIError(f"cannot write to the directory of {str(path)!r}")
+
+
+def _write_atomically(
+    path: Path, write: Callable[[Path], None], *, replacing: bool = False
+) -> None:
+    """`write(temporary)` to a new file beside `path`, then rename it to `path`: `path`
+    is then the whole new file or untouched, whatever fails or interrupts. An
+    `OSError` becomes a `CLIError` naming `path`; `replacing` (a file `_plan_outputs`
+    allowed to replace) is said in the message."""
+    if not replacing and (path.exists() or path.is_symlink()):
+        raise CLIError(  # appeared since `_plan_outputs`
+            f"{str(path)!r} appeared while jaxmr was running: pass --force to "
+            "replace it, or choose another --out"
+        )
+    # A new name in the same directory (os.replace is atomic on one file system),
+    # created by an ordinary open so that the file gets the usual permissions.
+    temporary = path.with_name(f".{path.name}.{secrets.token_hex(6)}.tmp")
+    try:
+        try:
+            write(temporary)
+            os.replace(temporary, path)
+        except BaseException:
+            try:
+                temporary.unlink(missing_ok=True)
+            except OSError:
+                pass
+            raise
+    except OSError as e:
+        raise CLIError(
+            f"cannot write {str(path)!r}: {e.strerror or e} "
+            f"({'left unchanged' if replacing else 'not written'})"
+        ) from e
+    print(
+        f"wrote {path}{' (replaced the existing file)' if replacing else ''}",
+        flush=True,
+    )
+
+
+def _write_text(path: Path, write, *, replacing: bool = False) -> None:
+    """`_write_atomically` for `write(f)` to a text file `f` (UTF-8)."""
+
+    def to(temporary: Path) -> None:
+        with open(temporary, "w", newline="", encoding="utf-8") as f:
+            write(f)
+
+    _write_atomically(path, to, replacing=replacing)
+
+
+def _save_figure(plt, figure, path: Path, *, replacing: bool = False) -> None:
+    try:
+        _write_atomically(
+            path,
+            lambda temporary: figure.savefig(temporary, dpi=120, format="png"),
+            replacing=replacing,
+        )
+    finally:
+        plt.close(figure)
 
 
 # ---------------------------------------------------------------------------------------
@@ -103,11 +236,28 @@ def _add_demo(subparsers) -> None:
         default="demo_out",
         help="directory for the figures and tables (created; default: demo_out)",
     )
+    demo.add_argument("--force", action="store_true", help=FORCE_HELP)
     demo.set_defaults(run=_demo)
+
+
+DEMO_FIGURES = (
+    ("torque_angle.png", "displacement"),
+    ("torque_velocity.png", "velocity"),
+    ("torque_time.png", "time"),
+)
+DEMO_FILES = (
+    *(name for name, _ in DEMO_FIGURES),
+    "energy_vs_current.png",
+    "summary.csv",
+    "summary.md",
+)
 
 
 def _demo(args: argparse.Namespace) -> int:
     out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        raise CLIError(f"the output path {str(out)!r} exists and is not a directory")
+    replacing = _plan_outputs([out / n for n in DEMO_FILES], [], force=args.force)
     _prepare_directory(out)
     # Before pyplot is imported (by jaxmr.plot, on use): no display is needed.
     import matplotlib
@@ -149,11 +299,7 @@ def _demo(args: argparse.Namespace) -> int:
         f"SAS MR brake, Bouc-Wen: {DEMO_FREQUENCY:g} Hz, ±{DEMO_AMPLITUDE_DEG:g}°, "
         "last cycle"
     )
-    for name, against in (
-        ("torque_angle.png", "displacement"),
-        ("torque_velocity.png", "velocity"),
-        ("torque_time.png", "time"),
-    ):
+    for name, against in DEMO_FIGURES:
         ax = jaxmr.plot.loop(
             solution,
             against,
@@ -162,19 +308,25 @@ def _demo(args: argparse.Namespace) -> int:
             last_cycles_from=last_cycle_from,
         )
         ax.set_title(title, fontsize="medium")
-        _save(plt, ax.figure, out / name)
+        _save_figure(plt, ax.figure, out / name, replacing=out / name in replacing)
     ax = jaxmr.plot.energy_vs_current(currents, energy)
     ax.set_title("SAS MR brake, Bouc-Wen: energy per cycle", fontsize="medium")
-    _save(plt, ax.figure, out / "energy_vs_current.png")
+    path = out / "energy_vs_current.png"
+    _save_figure(plt, ax.figure, path, replacing=path in replacing)
 
     header = ("current [A]", "peak torque [N·m]", "energy per cycle [J]")
     rows = list(zip(currents, peak, energy))
-    _write(
+    _write_text(
         out / "summary.csv",
         lambda f: _write_csv(f, ("current_A", "peak_torque_Nm", "energy_J"), rows),
+        replacing=out / "summary.csv" in replacing,
     )
     table = _markdown_table(header, rows)
-    _write(out / "summary.md", lambda f: f.write(table))
+    _write_text(
+        out / "summary.md",
+        lambda f: f.write(table),
+        replacing=out / "summary.md" in replacing,
+    )
     print()
     print(table, end="")
     return 0
@@ -192,25 +344,6 @@ def _prepare_directory(out: Path) -> None:
         raise CLIError(
             f"cannot write to the output directory {str(out)!r}: {e.strerror or e}"
         ) from e
-
-
-def _save(plt, figure, path: Path) -> None:
-    try:
-        figure.savefig(path, dpi=120)
-    except OSError as e:
-        raise CLIError(f"cannot write {str(path)!r}: {e.strerror or e}") from e
-    finally:
-        plt.close(figure)
-    print(f"wrote {path}", flush=True)
-
-
-def _write(path: Path, write) -> None:
-    try:
-        with open(path, "w", newline="", encoding="utf-8") as f:
-            write(f)
-    except OSError as e:
-        raise CLIError(f"cannot write {str(path)!r}: {e.strerror or e}") from e
-    print(f"wrote {path}", flush=True)
 
 
 def _write_csv(f, header: Sequence[str], rows) -> None:
@@ -267,17 +400,6 @@ def _read_experiments(paths: Sequence[str], *, need_force: bool, why: str) -> li
             f"({listed}); give files of one device"
         )
     return experiments
-
-
-def _check_writable_file(path: Path) -> None:
-    """Fail before a long fit rather than after it."""
-    if path.is_dir():
-        raise CLIError(f"the output path {str(path)!r} is a directory")
-    parent = path.parent
-    if not parent.is_dir():
-        raise CLIError(f"the directory of the output file {str(path)!r} does not exist")
-    if not os.access(parent, os.W_OK):
-        raise CLIError(f"cannot write to the directory of {str(path)!r}")
 
 
 def _load_model(path: str):
@@ -355,6 +477,7 @@ def _add_fit(subparsers) -> None:
         metavar="PARAMS.json",
         help="the parameter file to write (never one of the input files)",
     )
+    command.add_argument("--force", action="store_true", help=FORCE_HELP)
     command.add_argument(
         "--candidates",
         metavar="NAMES",
@@ -459,13 +582,87 @@ def _candidate_names(args, experiments) -> list[str]:
     return candidates
 
 
-def _refuse_input_as_output(out: Path, inputs) -> None:
-    for path in inputs:
-        if Path(path).exists() and out.exists() and os.path.samefile(out, path):
-            raise CLIError(
-                f"the output {str(out)!r} is one of the input files: choose another "
-                "--out (jaxmr never writes over its inputs)"
+def _where(frame) -> tuple[bool, bool]:
+    """Whether the stack from `frame` down holds JAX's own code, and the solver's
+    loop (`iterate`, which stops at a `KeyboardInterrupt` with the best model; found
+    by its names, as a wrapper such as jaxtyping's shares its code object)."""
+    in_jax = in_loop = False
+    while frame is not None:
+        name = frame.f_globals.get("__name__", "")
+        in_jax |= name in ("jax", "jaxlib") or name.startswith(("jax.", "jaxlib."))
+        in_loop |= (name, frame.f_code.co_name) == _SOLVER_LOOP
+        frame = frame.f_back
+    return in_jax, in_loop
+
+
+_SOLVER_LOOP = (iterate.__module__, iterate.__name__)
+
+
+class _Interrupts:
+    """Ctrl-C (SIGINT) while `jaxmr fit` runs, as a context manager.
+
+    The first Ctrl-C stops the fit, which keeps its best model so far. It raises
+    `KeyboardInterrupt` at once where that is safe: in the solver's loop (which
+    catches it) or before the first step (nothing to lose). Elsewhere it is deferred
+    to the fit's next step (`progress`) or, if none comes, to the end: within JAX
+    (XLA's compiler polls for Ctrl-C, and an exception raised through it crashed the
+    process later), and after a fit's loop (its report would be lost). Every later
+    Ctrl-C, and any while the command is `finishing` (reporting and writing the
+    model), is only counted and acknowledged: it cannot lose the model. `count` is
+    how many came. Python allows signal handlers in the main thread only; elsewhere
+    nothing changes.
+    """
+
+    def __init__(self):
+        self.count = 0
+        self.steps = 0
+        self.pending = False
+        self.finishing = False
+        self._installed = False
+        self._previous = None
+
+    def __enter__(self):
+        if threading.current_thread() is threading.main_thread():
+            self._previous = signal.signal(signal.SIGINT, self._handle)
+            self._installed = True
+        return self
+
+    def __exit__(self, *exc_info):
+        if self._installed:
+            previous = signal.SIG_DFL if self._previous is None else self._previous
+            signal.signal(signal.SIGINT, previous)
+        return False
+
+    def _handle(self, signum, frame):
+        self.count += 1
+        in_jax, in_loop = _where(frame)
+        if self.count > 1 or self.finishing:
+            _say("Ctrl-C again: ignored while the model is finished and written")
+        elif in_jax or (self.steps and not in_loop):
+            self.pending = True
+            _say(
+                "Ctrl-C: stopping at the fit's next step (after JAX's current "
+                "computation or compilation); the best model so far will be written"
             )
+        else:
+            raise KeyboardInterrupt
+
+    def progress(self, report: Callable[[int, float], None]):
+        """A fit's `progress(step, loss)`: `report`, then a deferred Ctrl-C raised
+        in the solver's loop, which stops there and keeps the best model."""
+
+        def call(step, loss):
+            self.steps += 1
+            report(step, loss)
+            if self.pending:
+                self.pending = False
+                raise KeyboardInterrupt
+
+        return call
+
+
+def _say(line: str) -> None:
+    print(f"\njaxmr fit: {line}", file=sys.stderr, flush=True)
 
 
 def _fit(args: argparse.Namespace) -> int:
@@ -477,8 +674,10 @@ def _fit(args: argparse.Namespace) -> int:
     if args.max_steps < 1 or args.starts < 1 or args.finalists < 1:
         raise CLIError("--max-steps, --starts and --finalists must be at least 1")
     out = Path(args.out)
+    replacing = _plan_outputs(
+        [out], args.files + (args.holdout or []), force=args.force
+    )
     _check_writable_file(out)
-    _refuse_input_as_output(out, args.files + (args.holdout or []))
     experiments = _read_experiments(args.files, need_force=True, why="fitting")
     smoothing = _processing(args.smoothing, args.files, "smoothing", "--smoothing")
     discard = _processing(args.discard, args.files, "discard", "--discard")
@@ -500,6 +699,18 @@ def _fit(args: argparse.Namespace) -> int:
     fit_kwargs = {"max_steps": args.max_steps}
     if args.starts > 1:
         fit_kwargs["starts"] = args.starts
+    with _Interrupts() as interrupts:
+        # The steps' progress: printed every 2 s by a single fit (not while `auto`
+        # compares), and where a Ctrl-C deferred by `interrupts` stops the fit.
+        printer = progress_printer(args.model != AUTO)
+        fit_kwargs["progress"] = interrupts.progress(printer)
+        fitting = (args, experiments, smoothing, discard, fit_kwargs)
+        return _fit_and_save(*fitting, out, out in replacing, interrupts)
+
+
+def _fit_and_save(
+    args, experiments, smoothing, discard, fit_kwargs, out, replacing, interrupts
+) -> int:
     start = time.perf_counter()
     selection = None
     try:
@@ -520,7 +731,6 @@ def _fit(args: argparse.Namespace) -> int:
                 result = jaxmr.fit(
                     model,
                     experiments,
-                    progress=True,
                     smoothing=smoothing,
                     discard=discard,
                     **fit_kwargs,
@@ -533,16 +743,25 @@ def _fit(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
         return INTERRUPTED
+    # From here on a Ctrl-C is deferred: the model is reported and written first.
+    interrupts.finishing = True
     elapsed = time.perf_counter() - start
-    print(f"\n{name}: {elapsed:.1f} s")
-    print(result)
     report = _fit_report(name, args.files, experiments, result, elapsed, selection)
     report["smoothing_s"] = smoothing
     report["discard_s"] = discard
-    _save_model_atomically(result.model, out, report)
+    print(f"\n{name}: {elapsed:.1f} s")
+    print(result)
+    if _save_model(result.model, out, report, replacing=replacing):
+        interrupts.count += 1
     if result.interrupted:
         print(
             f"jaxmr fit: interrupted; the best model so far is in {out}",
+            file=sys.stderr,
+        )
+        return INTERRUPTED
+    if interrupts.count:
+        print(
+            f"jaxmr fit: interrupted while finishing; the fitted model is in {out}",
             file=sys.stderr,
         )
         return INTERRUPTED
@@ -592,30 +811,49 @@ def _select(args, experiments, candidates, smoothing, discard, fit_kwargs):
     return selection
 
 
-def _save_model_atomically(model, out: Path, report: dict) -> None:
-    """Write the parameter file through a temporary file and a rename, so that a
-    failed write never leaves half a file; if it cannot be written, the model goes to
-    a file in the temporary directory, which the message names."""
-    try:
-        with tempfile.NamedTemporaryFile(
-            "w",
-            dir=out.parent or ".",
-            prefix=f".{out.name}.",
-            suffix=".tmp",
-            delete=False,
-        ) as f:
-            temporary = Path(f.name)
-        jaxmr.save_model(model, temporary, report=report)
-        os.replace(temporary, out)
-    except OSError as e:
-        rescue = Path(tempfile.gettempdir()) / f"jaxmr-fit-{os.getpid()}.json"
+def _save_model(model, out: Path, report: dict, *, replacing: bool) -> bool:
+    """Write the parameter file atomically (`_write_atomically`). A write stopped by a
+    `KeyboardInterrupt` (a Ctrl-C that came past `_Interrupts`) is made again. If the
+    file cannot be written, the model goes to a new file in the temporary directory,
+    which the error names.
+
+    **Returns:** whether a `KeyboardInterrupt` came during the write.
+    """
+
+    def write(path):
+        jaxmr.save_model(model, path, report=report)
+
+    interrupted = False
+    for _ in range(3):
         try:
-            jaxmr.save_model(model, rescue, report=report)
-            where = f"; the model was saved to {rescue}"
-        except OSError:
-            where = ""
-        raise CLIError(f"cannot write {str(out)!r}: {e.strerror or e}{where}") from e
-    print(f"wrote {out}", flush=True)
+            _write_atomically(out, write, replacing=replacing)
+            return interrupted
+        except KeyboardInterrupt:
+            interrupted = True
+            print(
+                "\njaxmr fit: Ctrl-C while writing the model; writing it again",
+                file=sys.stderr,
+                flush=True,
+            )
+        except CLIError as e:
+            raise CLIError(f"{e}{_rescue(write)}") from e
+    raise CLIError(f"interrupted 3 times while writing {str(out)!r}{_rescue(write)}")
+
+
+def _rescue(write) -> str:
+    """Save the model (`write(path)`) to a new file in the temporary directory; the
+    end of the error message that says where (or that it could not)."""
+    try:
+        descriptor, name = tempfile.mkstemp(prefix="jaxmr-fit-", suffix=".json")
+    except OSError as e:
+        return f"; the model could not be saved elsewhere either ({e.strerror or e})"
+    os.close(descriptor)
+    try:
+        write(Path(name))
+    except (OSError, KeyboardInterrupt) as e:
+        Path(name).unlink(missing_ok=True)
+        return f"; the model could not be saved elsewhere either ({e})"
+    return f"; the model was saved to {name} instead"
 
 
 def _fit_report(name, files, experiments, result, elapsed, selection) -> dict:
@@ -693,6 +931,7 @@ def _add_predict(subparsers) -> None:
         metavar="PRED.csv",
         help="the CSV file to write (never FILE itself)",
     )
+    command.add_argument("--force", action="store_true", help=FORCE_HELP)
     command.add_argument(
         "--smoothing",
         default="file",
@@ -713,8 +952,8 @@ def _add_predict(subparsers) -> None:
 
 def _predict(args: argparse.Namespace) -> int:
     out = Path(args.out)
+    replacing = _plan_outputs([out], [args.file, args.params], force=args.force)
     _check_writable_file(out)
-    _refuse_input_as_output(out, [args.file, args.params])
     model, _ = _load_model(args.params)
     (experiment,) = _read_experiments([args.file], need_force=False, why="")
     (smoothing,) = _processing(args.smoothing, [args.file], "smoothing", "--smoothing")
@@ -742,19 +981,31 @@ def _predict(args: argparse.Namespace) -> int:
         f"{type(model).__name__} model of {args.params}, from the motion and input of "
         f"{args.file}"
     )
-    try:
-        jaxmr.data.write_csv(result, out, comment=comment)
-    except OSError as e:
-        raise CLIError(f"cannot write {str(out)!r}: {e.strerror or e}") from e
     if experiment.force is not None:
-        t = np.asarray(experiment.t)
-        keep = t >= t[0] + discard
-        error = rmse(predicted, experiment.force, keep)
-        relative = nrmse(predicted, experiment.force, keep)
-        force_unit, _ = _units(experiment)
-        print(f"{args.file}: RMSE {error:.6g} {force_unit}, NRMSE {relative:.4f}")
-    print(f"wrote {out}", flush=True)
+        print(_prediction_error(args.file, experiment, predicted, discard), flush=True)
+    _write_atomically(
+        out,
+        lambda path: jaxmr.data.write_csv(result, path, comment=comment),
+        replacing=out in replacing,
+    )
     return 0
+
+
+def _prediction_error(path, experiment, predicted, discard: float) -> str:
+    """The line that `predict` prints: RMSE and NRMSE against the measured force after
+    the discarded start; the NRMSE (RMSE/std) is undefined for a constant force."""
+    t = np.asarray(experiment.t)
+    keep = t >= t[0] + discard
+    if not np.any(keep):
+        return f"{path}: no error: --discard {discard:g} s leaves no sample"
+    force_unit, _ = _units(experiment)
+    error = f"{path}: RMSE {rmse(predicted, experiment.force, keep):.6g} {force_unit}"
+    if not np.std(np.asarray(experiment.force)[keep]) > 0:
+        return (
+            f"{error}; NRMSE undefined: the measured force is constant (its standard "
+            "deviation, the NRMSE's denominator, is 0)"
+        )
+    return f"{error}, NRMSE {nrmse(predicted, experiment.force, keep):.4f}"
 
 
 # ---------------------------------------------------------------------------------------
@@ -780,6 +1031,7 @@ def _add_report(subparsers) -> None:
         metavar="DIR",
         help="directory for the figures and tables (created)",
     )
+    command.add_argument("--force", action="store_true", help=FORCE_HELP)
     command.set_defaults(run=_report)
 
 
@@ -802,6 +1054,15 @@ def _report(args: argparse.Namespace) -> int:
         args.files, need_force=True, why="the comparison with the model"
     )
     out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        raise CLIError(f"the output path {str(out)!r} exists and is not a directory")
+    figure_names = _figure_names(args.files)
+    tables = [out / "report.csv", out / "report.md"]
+    replacing = _plan_outputs(
+        [out / n for n in figure_names] + tables,
+        [args.params, *args.files],
+        force=args.force,
+    )
     _prepare_directory(out)
     import matplotlib
 
@@ -814,7 +1075,7 @@ def _report(args: argparse.Namespace) -> int:
     force_unit, input_unit = _units(experiments[0])
     rows = []
     for path, e, p, figure_name, d in zip(
-        args.files, experiments, predicted, _figure_names(args.files), discard
+        args.files, experiments, predicted, figure_names, discard
     ):
         keep = np.asarray(e.t) >= np.asarray(e.t)[0] + d
         error, relative = rmse(p, e.force, keep), nrmse(p, e.force, keep)
@@ -828,7 +1089,8 @@ def _report(args: argparse.Namespace) -> int:
                 f"(RMSE {error:.4g} {force_unit})"
             ),
         )
-        _save(plt, figure, out / figure_name)
+        path = out / figure_name
+        _save_figure(plt, figure, path, replacing=path in replacing)
     fit_report = data.get("report") if isinstance(data.get("report"), dict) else {}
     parameters = _parameter_rows(model, fit_report)
 
@@ -842,9 +1104,11 @@ def _report(args: argparse.Namespace) -> int:
                 (path, name, f"{level:.6g}", f"{error:.10g}", f"{relative:.10g}")
             )
 
-    _write(out / "report.csv", write_table)
+    _write_text(tables[0], write_table, replacing=tables[0] in replacing)
     markdown = _report_markdown(args.params, model, rows, parameters, fit_report)
-    _write(out / "report.md", lambda f: f.write(markdown))
+    _write_text(
+        tables[1], lambda f: f.write(markdown), replacing=tables[1] in replacing
+    )
     print()
     print(markdown, end="")
     return 0
@@ -894,10 +1158,6 @@ def _report_markdown(params, model, rows, parameters, fit_report) -> str:
     return "\n".join(lines) + "\n"
 
 
-if __name__ == "__main__":
-    sys.exit(main())
-
-
 # ---------------------------------------------------------------------------------------
 # jaxmr convert
 
@@ -926,6 +1186,10 @@ def _add_convert(subparsers) -> None:
 
 
 def _convert(args: argparse.Namespace) -> int:
+    # convert_dataset applies the rule of every command itself (never over the
+    # source, an existing file only with force, each file through a rename).
+    out = Path(args.out)
+    existed = set(out.iterdir()) if args.force and out.is_dir() else set()
     try:
         written = jaxmr.data.convert_dataset(
             args.dataset, args.source, args.out, force=args.force
@@ -933,6 +1197,11 @@ def _convert(args: argparse.Namespace) -> int:
     except (ValueError, FileExistsError, OSError) as e:
         raise CLIError(str(e)) from e
     for path in written:
-        print(f"wrote {path}")
+        replaced = " (replaced the existing file)" if Path(path) in existed else ""
+        print(f"wrote {path}{replaced}")
     print(f"{len(written)} file(s) in {args.out}")
     return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

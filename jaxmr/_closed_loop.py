@@ -8,6 +8,7 @@ from ._control.base import AbstractController, ConstantCurrent, DamperPlant
 from ._custom_types import Array, Float, Scalar
 from ._integrate import rk4_step
 from ._metrics import dissipated_energy
+from ._misc import warn_if_float32
 from ._road import RandomRoad
 from ._signal import AbstractSignal, as_signal
 from ._solution import RESULTS
@@ -88,10 +89,12 @@ def _check_arguments(system, excitation, duration, dt, substeps, delay):
     return as_signal(excitation, "excitation")
 
 
-def _system_checks(system, q0):
-    checks = list(system.constraints()) + [
-        (ok, message) for ok, message in system.damper.hysteresis.at(0.0).constraints()
-    ]
+def _system_checks(system, q0, i_max):
+    # The damper's laws over every current the controller may command, [0, i_max].
+    zero = jnp.zeros((), q0.dtype)
+    checks = list(system.constraints()) + system.damper.hysteresis.checks_over(
+        zero, jnp.asarray(i_max, q0.dtype)
+    )
     for ok, message in checks:
         q0 = eqx.error_if(
             q0,
@@ -163,6 +166,11 @@ def simulate_system(
 
     **Returns:** a `SystemSolution`.
     """
+    warn_if_float32(
+        "jaxmr.simulate_system",
+        needs="closed-loop simulations need float64 (accumulated time and the "
+        "gradients of tuning lose their digits in float32)",
+    )
     # Numbers become arrays before the jit boundary: a Python float current or
     # excitation would be a static argument there, one compilation per value.
     controller = _as_controller(controller)
@@ -198,10 +206,10 @@ def _simulate_system(
             f"states {system.state_names}, got {q0.shape}."
         )
     # The checks guard a value the loop uses (an unused `error_if` is optimised away).
-    q0 = _system_checks(system, q0)
+    i_max = jnp.asarray(controller.i_max, dtype=t0.dtype)
+    q0 = _system_checks(system, q0, i_max)
     q0 = _excitation_checks(excitation, q0, dt, duration)
     nq = q0.shape[0]
-    i_max = jnp.asarray(controller.i_max, dtype=t0.dtype)
 
     def split(y):
         return y[:nq], y[nq:]

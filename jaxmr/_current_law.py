@@ -160,6 +160,17 @@ def resolve(tree, current: ScalarLike):
     return jax.tree.map(lambda p: p(current) if is_law(p) else p, tree, is_leaf=is_law)
 
 
+def ranged_laws(tree) -> list[tuple[str, AbstractCurrentLaw]]:
+    """`(path, law)` for every law in `tree` with a validity range (a `TableLaw`);
+    `path` locates it in `tree`, e.g. `".alpha"`, for messages."""
+    found = jax.tree_util.tree_leaves_with_path(tree, is_leaf=is_law)
+    return [
+        (jax.tree_util.keystr(path), law)
+        for path, law in found
+        if is_law(law) and law.range() is not None
+    ]
+
+
 def law_ranges(tree) -> list[tuple[Array, Array]]:
     """The validity ranges of all the laws in `tree` that have one."""
     laws = [p for p in jax.tree.leaves(tree, is_leaf=is_law) if is_law(p)]

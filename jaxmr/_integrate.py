@@ -25,6 +25,7 @@ import jax.numpy as jnp
 import optimistix as optx
 
 from ._custom_types import Array, Float, Int
+from ._misc import is_concrete
 from ._solution import RESULTS
 
 
@@ -47,9 +48,21 @@ class AbstractIntegrator(eqx.Module):
 
     @abc.abstractmethod
     def integrate(
-        self, vector_field: Callable, y0: Array, ts: Float[Array, " times"], args
+        self,
+        vector_field: Callable,
+        y0: Array,
+        ts: Float[Array, " times"],
+        args,
+        *,
+        jump_ts: Float[Array, " jumps"] | None = None,
     ) -> tuple[Float[Array, "times states"], RESULTS, Int[Array, ""]]:
-        """Returns the states at `ts`, a result code and the number of steps taken."""
+        """Returns the states at `ts`, a result code and the number of steps taken.
+
+        `jump_ts` [s]: times where the vector field jumps (a current step, the knots of
+        a sampled signal), for an adaptive integrator to step to exactly. `simulate`
+        passes it only when its signals have such times, so an integrator that ignores
+        it may leave it out of its signature.
+        """
 
 
 class AbstractAdaptiveIntegrator(AbstractIntegrator):
@@ -61,7 +74,19 @@ class AbstractAdaptiveIntegrator(AbstractIntegrator):
     max_steps: eqx.AbstractVar[int]
     adjoint: eqx.AbstractVar[dfx.AbstractAdjoint]
 
-    def integrate(self, vector_field, y0, ts, args):
+    def integrate(self, vector_field, y0, ts, args, *, jump_ts=None):
+        _check_rtol_resolvable(self, ts.dtype)
+        controller = dfx.PIDController(rtol=self.rtol, atol=self.atol)
+        if jump_ts is not None:
+            # Without the jump times the controller finds each jump by rejecting steps
+            # until one straddles it within tolerance (measured at rtol 1e-8: ~75 extra
+            # steps per current step through a FirstOrderLag; 8x the steps for a linear
+            # `Sampled` motion); with them it steps to just before each jump and
+            # restarts just after. diffrax 0.7 takes them in ClipStepSizeController
+            # (PIDController no longer does).
+            controller = dfx.ClipStepSizeController(
+                controller, jump_ts=jax.lax.stop_gradient(jump_ts.astype(ts.dtype))
+            )
         sol = dfx.diffeqsolve(
             dfx.ODETerm(vector_field),
             self.solver,
@@ -71,22 +96,63 @@ class AbstractAdaptiveIntegrator(AbstractIntegrator):
             y0,
             args,
             saveat=dfx.SaveAt(ts=ts),
-            stepsize_controller=dfx.PIDController(rtol=self.rtol, atol=self.atol),
+            stepsize_controller=controller,
             adjoint=self.adjoint,
             max_steps=self.max_steps,
             throw=False,
         )
-        return sol.ys, RESULTS.promote(sol.result), sol.stats["num_steps"]
+        result = RESULTS.promote(sol.result)
+        if jnp.finfo(ts.dtype).bits < 64:
+            # Running out of steps in single precision is nearly always an atol (or a
+            # traced rtol) below what float32 resolves: say so, not "increase max_steps".
+            result = RESULTS.where(
+                result == RESULTS.max_steps_reached, RESULTS.max_steps_float32, result
+            )
+        return sol.ys, result, sol.stats["num_steps"]
+
+
+# rtol must exceed this many machine epsilons: in float32 (eps 1.2e-7) rtol 1e-6 solved
+# the 10 s brake run, 1e-7 did not.
+_RTOL_EPS = 8
+
+
+def _check_rtol_resolvable(integrator: AbstractAdaptiveIntegrator, dtype) -> None:
+    """Raise at trace time when `rtol` is below what `dtype` resolves.
+
+    In float32 (eps 1.2e-7) Dopri8 at rtol 1e-8 or 1e-7 shrinks its steps until they
+    stop changing t and the solve ends at `max_steps` (measured: the SAS brake, 10 s
+    at 1 Hz, 1e6 steps; rtol 1e-6 took 6e4). That error says "increase max_steps", the
+    wrong cure: say float64 is needed instead.
+    """
+    rtol = integrator.rtol
+    if not jnp.issubdtype(dtype, jnp.floating) or not is_concrete(rtol):
+        return
+    eps = float(jnp.finfo(dtype).eps)
+    if float(rtol) < _RTOL_EPS * eps:
+        name = type(integrator).__name__
+        raise ValueError(
+            f"{name}: rtol = {float(rtol):g} cannot be met in {jnp.dtype(dtype).name} "
+            f"(machine epsilon {eps:.1e}): the steps would shrink until `max_steps` "
+            "runs out. Simulations need float64: call "
+            "jax.config.update('jax_enable_x64', True) at startup, before creating "
+            f"arrays. To stay in {jnp.dtype(dtype).name}, pass rtol >= "
+            f"{_RTOL_EPS * eps:.0e} and an atol above ~1e-8 of the states' size (e.g. "
+            f"{name}(rtol=1e-5, atol=1e-8) for states of order 1), or use FixedStep()."
+        )
 
 
 class Adaptive(AbstractAdaptiveIntegrator):
     """An explicit adaptive Runge–Kutta solve (diffrax), the accurate default.
 
+    Steps exactly to the jump times of the signals (a `Steps` current's switching
+    times, the knots of a linear `Sampled` motion) instead of locating each jump by
+    rejected steps.
+
     **Arguments:**
 
     - `solver`: a diffrax adaptive solver, default `diffrax.Dopri8()`.
-    - `rtol`, `atol`: tolerances (default 1e-8, 1e-10; float64 needed for them to mean
-      anything).
+    - `rtol`, `atol`: tolerances (default 1e-8, 1e-10: float64 is needed; in float32
+      an rtol below 1e-6 is refused with an error, as the solve could not meet it).
     - `max_steps`: the most steps one simulation may take.
     - `adjoint`: diffrax adjoint; `diffrax.RecursiveCheckpointAdjoint()` (default) for
       reverse mode, `diffrax.ForwardMode()` for forward-mode Jacobians.
@@ -139,7 +205,11 @@ class FixedStep(AbstractIntegrator):
                 f"FixedStep: `substeps` must be a positive integer, got {self.substeps}."
             )
 
-    def integrate(self, vector_field, y0, ts, args):
+    def integrate(self, vector_field, y0, ts, args, *, jump_ts=None):
+        # Jump times are ignored: the steps are tied to the output times (put a jump on
+        # an output time, or use Adaptive, to resolve it exactly).
+        del jump_ts
+
         def interval(y, t_pair):
             t0, t1 = t_pair
             h = (t1 - t0) / self.substeps

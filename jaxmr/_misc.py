@@ -1,5 +1,7 @@
 """Small numerical helpers used by several models."""
 
+import warnings
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -10,6 +12,26 @@ from ._custom_types import Array, ArrayLike
 def default_float():
     """The floating dtype jax uses now (float64 only when the user enabled x64)."""
     return jnp.result_type(float)
+
+
+def warn_if_float32(
+    what: str,
+    stacklevel: int = 3,
+    needs: str = "identification needs float64 (solver tolerances, Jacobian "
+    "conditioning, accumulated time)",
+) -> None:
+    """Warn that `what` runs in float32 when jax's default float is float32.
+
+    `needs` says why float64 matters there. The default `stacklevel` points at the
+    caller of the public function that calls this one.
+    """
+    if jnp.result_type(float) != jnp.float64:
+        warnings.warn(
+            f"{what} is running in float32: {needs}. Call "
+            "jax.config.update('jax_enable_x64', True) before creating arrays.",
+            UserWarning,
+            stacklevel=stacklevel,
+        )
 
 
 def as_float_array(x: ArrayLike) -> Array:

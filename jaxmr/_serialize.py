@@ -49,7 +49,7 @@ def _encode(value):
 def _decode(value, classes, where="model"):
     if isinstance(value, dict) and "type" in value and "fields" in value:
         name = value["type"]
-        if name not in classes:
+        if not isinstance(name, str) or name not in classes:
             raise ValueError(
                 f"{where}: unknown model type {name!r} in the file; pass your class in "
                 "`classes={...}` to load it."
@@ -71,6 +71,11 @@ def _decode(value, classes, where="model"):
             ) from None
     if isinstance(value, float):
         return jnp.asarray(value, dtype=default_float())
+    if isinstance(value, dict):  # `_encode` writes dicts only for models
+        raise ValueError(
+            f"{where}: expected a number or a model (an object with 'type' and "
+            f"'fields'), got {json.dumps(value)[:80]}."
+        )
     return value
 
 
@@ -145,7 +150,13 @@ def model_from_dict(data: dict, classes: dict[str, type] | None = None) -> eqx.M
         raise ValueError("not a jaxmr model file: no 'model' entry.")
     registry = _registry()
     registry.update(classes or {})
-    return _decode(data["model"], registry)
+    model = _decode(data["model"], registry)
+    if not isinstance(model, eqx.Module):
+        raise ValueError(
+            "not a jaxmr model file: its 'model' entry is not a model (an object "
+            f"with a 'type' field), got {type(model).__name__}."
+        )
+    return model
 
 
 def save_model(model: eqx.Module, path, **extra) -> None:
@@ -168,6 +179,13 @@ def load_model(path, classes: dict[str, type] | None = None) -> eqx.Module:
         data = json.loads(Path(path).read_text())
     except json.JSONDecodeError as e:
         raise ValueError(f"{path}: not valid JSON ({e}).") from e
+    except UnicodeDecodeError as e:
+        raise ValueError(f"{path}: not a text file ({e}).") from e
+    if not isinstance(data, dict):
+        raise ValueError(
+            f"{path}: not a jaxmr model file: expected a JSON object with a 'type' "
+            f"field (as `save_model` writes), got {type(data).__name__}."
+        )
     try:
         return model_from_dict(data, classes)
     except ValueError as e:

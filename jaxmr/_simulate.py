@@ -9,12 +9,12 @@ import jax.numpy as jnp
 import numpy as np
 from jax.sharding import Mesh, PartitionSpec
 
-from ._current_law import is_law
+from ._current_law import ranged_laws
 from ._custom_types import ArrayLike, Float, ScalarLike
 from ._damper import Damper, as_damper
 from ._hysteresis import AbstractHysteresis
 from ._integrate import AbstractIntegrator, Adaptive, FixedStep
-from ._misc import as_float_array, is_concrete
+from ._misc import as_float_array, is_concrete, warn_if_float32
 from ._signal import AbstractSignal, as_signal
 from ._solution import RESULTS, Solution
 
@@ -60,8 +60,14 @@ def _runtime_message(message: str) -> str:
     return message
 
 
-def _runtime_checks(damper: Damper, motion, current, ts):
-    """Checks of values only known under jit: they raise with these messages."""
+def _runtime_checks(damper: Damper, motion, current, ts, table_errors: bool = True):
+    """Checks of values only known under jit: they raise with these messages.
+
+    Returns `ts` (guarded by the checks) and whether the current stays inside the range
+    of every TableLaw in the model. With `table_errors=False` leaving a range is not an
+    error but the result code `current_outside_table` (`throw=False`: one current
+    beyond a table must not stop a whole sweep).
+    """
     checks = [
         (
             jnp.all(jnp.isfinite(ts)),
@@ -75,20 +81,25 @@ def _runtime_checks(damper: Damper, motion, current, ts):
     checks += [(ok, f"`motion`: {m}") for ok, m in motion.checks()]
     checks += [(ok, f"`current`: {m}") for ok, m in current.checks()]
     lo, hi = current.bounds()
-    for law_lo, law_hi in damper.current_ranges():
-        checks.append(
-            (
-                (lo >= law_lo) & (hi <= law_hi),
-                "`current` leaves the current range of a TableLaw in the model (laws "
-                "are not extrapolated); extend the table or keep the current inside "
-                "it.",
+    in_tables = jnp.array(True)
+    model = type(damper.hysteresis).__name__
+    for path, law in ranged_laws(damper.hysteresis):
+        law_lo, law_hi = law.range()
+        ok = (lo >= law_lo) & (hi <= law_hi)
+        if table_errors:
+            # The ranges are traced here: `simulate` and `sweep` quote them when the
+            # inputs are concrete (`_check_tables_now`).
+            checks.append(
+                (
+                    ok,
+                    "`current` leaves the current range of a TableLaw in the model "
+                    f"(`{model}{path}`; laws are not extrapolated); extend the table "
+                    "or keep the current inside it.",
+                )
             )
-        )
-    name = type(damper.hysteresis).__name__
-    if any(is_law(p) for p in jax.tree.leaves(damper.hysteresis, is_leaf=is_law)):
-        name += " (its current laws evaluated at the current at ts[0])"
-    at_start = damper.hysteresis.at(current(ts[0]))
-    checks += [(ok, f"{name}: {m}") for ok, m in at_start.constraints()]
+        else:
+            in_tables = in_tables & ok
+    checks += damper.hysteresis.checks_over(lo, hi)
     if damper.dynamics is not None:
         dynamics = damper.dynamics
         checks += [
@@ -96,7 +107,40 @@ def _runtime_checks(damper: Damper, motion, current, ts):
         ]
     for ok, message in checks:
         ts = eqx.error_if(ts, jnp.logical_not(ok), _runtime_message(message))
-    return ts
+    return ts, in_tables
+
+
+def _check_tables_now(damper: Damper, bounds, device: str = "", current: str = ""):
+    """Raise now, quoting the numbers, when concrete current `bounds` (lo, hi) [A] leave
+    the range of a concrete TableLaw in `damper`. The runtime check cannot quote them:
+    under jit they are traced. Raised as the runtime check's exception type, so the
+    same mistake raises the same error with concrete or traced inputs."""
+    if bounds is None:
+        return
+    lo, hi = bounds
+    model = type(damper.hysteresis).__name__
+    for path, law in ranged_laws(damper.hysteresis):
+        if not is_concrete(law):
+            continue
+        with jax.ensure_compile_time_eval():
+            law_lo, law_hi = (float(x) for x in law.range())
+        if lo < law_lo or hi > law_hi:
+            spans = f"is {lo:g} A" if lo == hi else f"spans [{lo:g}, {hi:g}] A"
+            raise eqx.EquinoxRuntimeError(
+                f"`current{current}` leaves the current range of a TableLaw in the "
+                f"model{device}: it {spans}, the TableLaw for `{model}{path}` covers "
+                f"[{law_lo:g}, {law_hi:g}] A (laws are not extrapolated); extend the "
+                "table or keep the current inside it."
+            )
+
+
+def _concrete_bounds(current: AbstractSignal) -> tuple[float, float] | None:
+    """A concrete current signal's (lo, hi) [A], or None when traced."""
+    if not is_concrete(current):
+        return None
+    with jax.ensure_compile_time_eval():
+        lo, hi = current.bounds()
+        return float(lo), float(hi)
 
 
 def _field(t, y, args):
@@ -105,15 +149,25 @@ def _field(t, y, args):
 
 
 def _run(
-    damper, motion, current, ts, integrator, initial_state, checks: bool = True
+    damper,
+    motion,
+    current,
+    ts,
+    integrator,
+    initial_state,
+    checks: bool = True,
+    throw: bool = True,
 ) -> Solution:
     """One simulation, traced (no jit of its own: it is vmapped and mapped).
 
     `checks=False` skips the runtime input checks: `fit` validates its data once, and
     under vmap every `eqx.error_if` becomes a host callback on each evaluation.
+    `throw=False` makes a current outside a TableLaw's range a result code, not an
+    error.
     """
+    in_tables = jnp.array(True)
     if checks:
-        ts = _runtime_checks(damper, motion, current, ts)
+        ts, in_tables = _runtime_checks(damper, motion, current, ts, throw)
     x = jax.vmap(motion)(ts)
     v = jax.vmap(motion.derivative)(ts)
     i = jax.vmap(current)(ts)
@@ -125,8 +179,16 @@ def _run(
         ys = jnp.zeros((ts.shape[0], 0), dtype=ts.dtype)
         result, num_steps = RESULTS.successful, jnp.array(0)
     else:
+        jumps = [
+            jnp.ravel(j).astype(ts.dtype)
+            for j in (motion.jump_times(), current.jump_times())
+            if j is not None
+        ]
+        # Passed only when there are jumps: an integrator written for the
+        # four-argument `integrate` keeps working with smooth signals.
+        extra = {"jump_ts": jnp.concatenate(jumps)} if jumps else {}
         ys, result, num_steps = integrator.integrate(
-            _field, y0, ts, (damper, motion, current)
+            _field, y0, ts, (damper, motion, current), **extra
         )
     force = jax.vmap(damper.force)(ys, x, v, i)
     effective = jax.vmap(damper.effective_current)(ys, i)
@@ -144,6 +206,9 @@ def _run(
             RESULTS.state_out_of_bounds,
             result,
         )
+    # The input's fault comes first: whatever the solve did, it ran a current the model
+    # is not valid for.
+    result = RESULTS.where(in_tables, result, RESULTS.current_outside_table)
     return Solution(
         ts=ts,
         displacement=x,
@@ -160,8 +225,16 @@ def _run(
 
 @eqx.filter_jit
 def _simulate(damper, motion, current, ts, integrator, initial_state, throw):
-    sol = _run(damper, motion, current, ts, integrator, initial_state)
+    sol = _run(damper, motion, current, ts, integrator, initial_state, throw=throw)
     return sol.result.error_if(sol, sol.result != RESULTS.successful) if throw else sol
+
+
+# Why `simulate` and `sweep` warn in float32 (`warn_if_float32`).
+_FLOAT64_NEEDED = (
+    "simulations need float64 (Adaptive's default rtol 1e-8 is below what float32 "
+    "resolves, and rounding accumulates with time; FixedStep runs, at float32's "
+    "accuracy)"
+)
 
 
 def _prepare(device, motion, current, integrator):
@@ -217,7 +290,8 @@ def simulate(
     - `initial_state`: the state at `ts[0]`; default: a virgin device (z = 0) with the
       current dynamics settled at the initial command.
     - `throw`: raise if the solve fails (default); with `False` inspect
-      `solution.result` instead.
+      `solution.result` instead (a current outside a `TableLaw`'s range is then the
+      code `RESULTS.current_outside_table`; other invalid inputs still raise).
 
     **Returns:** a `Solution` (force [N] or torque [N·m], states, inputs, result).
     """
@@ -225,8 +299,11 @@ def simulate(
         raise ValueError(
             "`ts` is required: the output times [s], e.g. jnp.linspace(0, 2, 2001)."
         )
+    warn_if_float32("jaxmr.simulate", needs=_FLOAT64_NEEDED)
     damper, motion, current, integrator = _prepare(device, motion, current, integrator)
     ts = _check_times(ts)
+    if throw and ranged_laws(damper.hysteresis):
+        _check_tables_now(damper, _concrete_bounds(current))
     if initial_state is not None:
         initial_state = as_float_array(initial_state)
         expected = len(damper.state_names)
@@ -265,15 +342,42 @@ def _stack(items, what: str):
     return eqx.combine(stacked, static), len(items)
 
 
-def _as_batch(value, convert, what: str):
-    """(module, size or None): a sequence or 1-D array becomes a batch."""
+def _items(value, convert, what: str) -> tuple[list, bool]:
+    """The converted elements of a sweep argument, and whether it is a batch (a
+    sequence, or a 1-D array of currents)."""
     if isinstance(value, (list, tuple)):
-        return _stack([convert(v) for v in value], what)
+        return [convert(v) for v in value], True
     if what == "current" and not isinstance(value, AbstractSignal):
         array = as_float_array(value)
         if array.ndim == 1:
-            return _stack([as_signal(c) for c in array], what)
-    return convert(value), None
+            return [as_signal(c) for c in array], True
+    return [convert(value)], False
+
+
+def _as_batch(items: list, batched: bool, what: str):
+    """(module, size or None): the elements of a batch stacked, or the single one."""
+    return _stack(items, what) if batched else (items[0], None)
+
+
+def _check_sweep_tables(devices, device_batched, currents, current_batched, grid):
+    """`_check_tables_now` for every (device, current) pair the sweep runs."""
+    ranged = [bool(ranged_laws(d.hysteresis)) for d in devices]
+    if not any(ranged):
+        return
+    bounds = [_concrete_bounds(c) for c in currents]
+    zipped = not grid and len(devices) > 1 and len(bounds) > 1
+    for j, device in enumerate(devices):
+        if not ranged[j]:
+            continue
+        for k, b in enumerate(bounds):
+            if zipped and j != k:
+                continue
+            _check_tables_now(
+                device,
+                b,
+                f" device[{j}]" if device_batched else "",
+                f"[{k}]" if current_batched else "",
+            )
 
 
 def _index(batched, size, indices):
@@ -304,16 +408,20 @@ def _sweep(
     # The throw and the reshape to the sweep's axes happen inside the same compiled call:
     # done outside, each copied the whole solution (~15 % of a large sweep's time).
     sol = _sweep_flat(
-        damper, motion, current, axes, ts, integrator, batching, batch_size
+        damper, motion, current, axes, ts, integrator, batching, batch_size, throw
     )
     if throw:
         sol = sol.result.error_if(sol, jnp.any(sol.result != RESULTS.successful))
     return jax.tree.map(lambda a: a.reshape(shape + a.shape[1:]), sol)
 
 
-def _sweep_flat(damper, motion, current, axes, ts, integrator, batching, batch_size):
+def _sweep_flat(
+    damper, motion, current, axes, ts, integrator, batching, batch_size, throw=True
+):
     def one(d, m, c):
-        return _run(d, m, c, ts, integrator, None)
+        # throw=False: a current outside a table is this run's result code, not an
+        # error that stops every run.
+        return _run(d, m, c, ts, integrator, None, throw=throw)
 
     def local(d, m, c):
         if batching == "vmap":
@@ -405,8 +513,11 @@ def sweep(
     - `batch_size`: runs vmapped together inside each `lax.map` step (default `None`:
       one at a time; ignored by `"vmap"`).
 
-    **Returns:** a `Solution` whose arrays have the sweep's leading axes.
+    **Returns:** a `Solution` whose arrays have the sweep's leading axes; with
+    `throw=False` each run has its own `result` (a current outside a `TableLaw`'s range
+    gives `RESULTS.current_outside_table` for the runs with that current).
     """
+    warn_if_float32("jaxmr.sweep", needs=_FLOAT64_NEEDED)
     damper_in = device
     if isinstance(device, (list, tuple)):
         damper_in = [as_damper(d) for d in device]
@@ -429,10 +540,12 @@ def sweep(
             raise TypeError(f"`motion` must be jaxmr signals, got {type(m).__name__}.")
         return m
 
+    devices = _items(damper_in, as_damper, "device")
+    currents = _items(current, as_signal, "current")
     batches = [
-        _as_batch(damper_in, as_damper, "device"),
-        _as_batch(motion, as_motion, "motion"),
-        _as_batch(current, as_signal, "current"),
+        _as_batch(*devices, "device"),
+        _as_batch(*_items(motion, as_motion, "motion"), "motion"),
+        _as_batch(*currents, "current"),
     ]
     sizes = [size for _, size in batches]
     batched = [k for k, s in enumerate(sizes) if s is not None]
@@ -454,6 +567,8 @@ def sweep(
             )
         shape = (lengths.pop(),)
         index = {k: np.arange(shape[0]) for k in batched}
+    if throw:
+        _check_sweep_tables(*devices, *currents, grid)
     args, axes = [], []
     for k, (module, size) in enumerate(batches):
         module, axis = _index(module, size, index.get(k))

@@ -23,6 +23,19 @@ class RESULTS(dfx.RESULTS):  # pyright: ignore[reportGeneralTypeIssues]
         "built-in laws do) or raise its `i_max`."
     )
 
+    max_steps_float32 = (
+        "The maximum number of solver steps was reached in float32: tolerances below "
+        "what float32 resolves (rtol under ~1e-6, atol under ~1e-8 of the states' size) "
+        "shrink the steps without end. Simulate in float64 (call "
+        "jax.config.update('jax_enable_x64', True) before creating arrays), or loosen "
+        "rtol and atol, or increase `max_steps`."
+    )
+    current_outside_table = (
+        "The current leaves the current range of a TableLaw in the model (laws are not "
+        "extrapolated): extend the table or keep the current inside it; with "
+        "throw=True, simulate and sweep quote the ranges."
+    )
+
 
 class Solution(eqx.Module):
     """The result of `simulate` (or `sweep`: every array then has the sweep's leading

@@ -79,6 +79,20 @@ def test_demo_table(demo):
         assert line in stdout  # the table is printed too
 
 
+def test_demo_does_not_replace_its_files_without_force(demo, capsys):
+    """A second `jaxmr demo` into the same directory stops before simulating: its
+    files are there already, and only --force replaces them."""
+    _, out, _ = demo
+    names = FIGURES + ("summary.csv", "summary.md")
+    before = {name: (out / name).read_bytes() for name in names}
+    assert main(["demo", "--out", out]) == 1
+    captured = capsys.readouterr()
+    assert "already exist: pass --force to replace" in captured.err
+    assert "simulating" not in captured.out
+    assert {name: (out / name).read_bytes() for name in names} == before
+    assert sorted(p.name for p in out.iterdir()) == sorted(names)
+
+
 def test_demo_unwritable_directory(tmp_path, capsys):
     blocker = tmp_path / "a_file"
     blocker.write_text("not a directory")

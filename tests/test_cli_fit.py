@@ -8,8 +8,15 @@ reuses, to keep the file fast.
 
 import contextlib
 import csv
+import errno
+import importlib
 import io
 import json
+import os
+import signal
+import tempfile
+import threading
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -278,3 +285,272 @@ def test_errors(files, tmp_path, capsys):
     not_json.write_text("{")
     err = _error(["report", not_json, *files, "--out", tmp_path / "r"], capsys)
     assert "not a JSON parameter file" in err
+
+
+# ---------------------------------------------------------------------------------------
+# Files: no command writes over its inputs, an existing output is replaced only with
+# --force, and every file is written whole or not at all.
+
+
+def _listing(directory):
+    return sorted(p.name for p in directory.iterdir())
+
+
+def _copies(files, directory):
+    copies = [directory / f.name for f in files]
+    for f, copy in zip(files, copies):
+        copy.write_bytes(f.read_bytes())
+    return copies
+
+
+def test_predict_refuses_to_write_over_its_inputs(fitted, files, tmp_path, capsys):
+    """`predict --out` the measured file (or a link to it, or the parameter file) is
+    refused, with or without --force, and the inputs are unchanged byte for byte."""
+    _, params, _ = fitted
+    (data,) = _copies(files[1:2], tmp_path)
+    link = tmp_path / "link.csv"
+    link.symlink_to(data)
+    before = data.read_bytes(), params.read_bytes()
+    for out in (data, link, params):
+        for force in ([], ["--force"]):
+            err = _error(["predict", params, data, "--out", out, *force], capsys)
+            assert "would write over the input file" in err, err
+            assert "even with --force" in err
+    assert (data.read_bytes(), params.read_bytes()) == before
+    assert _listing(tmp_path) == ["dahl_0.5A.csv", "link.csv"]
+
+
+def test_fit_refuses_to_write_over_an_input(files, tmp_path, capsys):
+    """Refused before anything is fitted, also through `..` and for a held-out file."""
+    data = _copies(files, tmp_path)
+    before = [f.read_bytes() for f in data]
+    roundabout = tmp_path / ".." / tmp_path.name / data[2].name
+    for force in ([], ["--force"]):
+        err = _error(
+            ["fit", "--model", "dahl", "--out", data[0], *force, *data], capsys
+        )
+        assert f"would write over the input file {str(data[0])!r}" in err
+        err = _error(
+            ["fit", "--holdout", data[2], "--out", roundabout, *force, *data], capsys
+        )
+        assert "would write over the input file" in err
+    assert [f.read_bytes() for f in data] == before
+
+
+def test_report_refuses_an_input_in_its_directory(fitted, files, tmp_path, capsys):
+    """`report --out DIR` where DIR holds an input that one of its figures (a data
+    file named run.png gives the figure run.png) or tables (report.csv) would replace:
+    refused before anything is written, with or without --force."""
+    _, params, _ = fitted
+    directory = tmp_path / "d"
+    directory.mkdir()
+    for name in ("run.png", "report.csv"):
+        data = directory / name
+        data.write_bytes(files[0].read_bytes())
+        for force in ([], ["--force"]):
+            err = _error(
+                ["report", params, data, files[1], "--out", directory, *force], capsys
+            )
+            assert f"would write over the input file {str(data)!r}" in err
+        assert data.read_bytes() == files[0].read_bytes()
+        data.unlink()
+        assert _listing(directory) == []
+
+
+def test_an_existing_output_needs_force(fitted, files, tmp_path, capsys):
+    """An existing file that is not an input: refused, unchanged, without --force;
+    replaced with it, and the command says so."""
+    _, params, _ = fitted
+    out = tmp_path / "old.csv"
+    out.write_text("precious\n")
+    err = _error(["predict", params, files[1], "--out", out], capsys)
+    assert f"{str(out)!r} already exists: pass --force" in err
+    assert out.read_text() == "precious\n"
+    status, stdout = _run(["predict", params, files[1], "--out", out, "--force"])
+    assert status == 0 and f"wrote {out} (replaced the existing file)" in stdout
+    assert jaxmr.data.read_csv(out).force is not None
+
+    old = tmp_path / "old.json"
+    old.write_text("{}")
+    err = _error(["fit", "--model", "dahl", "--out", old, *files], capsys)
+    assert "already exists: pass --force" in err and old.read_text() == "{}"
+    status, stdout = _run(["fit", "--model", "dahl", "--out", old, "--force", *files])
+    assert status == 0 and f"wrote {old} (replaced the existing file)" in stdout
+    assert isinstance(jaxmr.load_model(old), jaxmr.Dahl)
+
+    directory = tmp_path / "report"
+    directory.mkdir()
+    (directory / "report.md").write_text("mine")
+    err = _error(["report", params, files[0], "--out", directory], capsys)
+    assert f"{str(directory / 'report.md')!r} already exists: pass --force" in err
+    assert _listing(directory) == ["report.md"]
+    assert (directory / "report.md").read_text() == "mine"
+
+
+def test_predict_constant_force(fitted, tmp_path):
+    """A measured force that does not vary: the RMSE is printed, the NRMSE (RMSE/std)
+    is said to be undefined, and the prediction is written."""
+    _, params, _ = fitted
+    e = _experiment(0.5, None, force=False)
+    data = tmp_path / "constant.csv"
+    jaxmr.data.write_csv(
+        jaxmr.data.Experiment(e.t, e.x, e.v, 0.5, np.full(len(e), 120.0)), data
+    )
+    out = tmp_path / "pred.csv"
+    status, stdout = _run(["predict", params, data, "--out", out])
+    assert status == 0 and f"wrote {out}" in stdout
+    assert f"{data}: RMSE " in stdout and "NRMSE undefined" in stdout
+    assert "constant" in stdout and "NRMSE inf" not in stdout
+    assert jaxmr.data.read_csv(out).force is not None
+
+
+def _full_disk(path):
+    """Write half a file at `path`, then fail as a full disk does."""
+    Path(path).write_text("t,x,v,i,F\n0,0,")
+    raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+
+def test_a_failed_write_leaves_no_partial_file(
+    fitted, files, tmp_path, monkeypatch, capsys
+):
+    """A disk that fills up while the prediction is written: an error naming the file,
+    the file replaced (--force) left as it was, a new one not created, no temporary
+    file left."""
+    _, params, _ = fitted
+    monkeypatch.setattr(jaxmr.data, "write_csv", lambda e, path, **_: _full_disk(path))
+    out = tmp_path / "pred.csv"
+    out.write_text("old\n")
+    err = _error(["predict", params, files[1], "--out", out, "--force"], capsys)
+    assert f"cannot write {str(out)!r}: {os.strerror(errno.ENOSPC)}" in err
+    assert out.read_text() == "old\n" and _listing(tmp_path) == ["pred.csv"]
+    out.unlink()
+    _error(["predict", params, files[1], "--out", out], capsys)
+    assert _listing(tmp_path) == []
+
+
+def test_fit_that_cannot_write_saves_the_model_elsewhere(
+    files, fitted, tmp_path, monkeypatch, capsys
+):
+    """The parameter file cannot be written after the fit (a full disk): nothing is
+    left beside it, the model is saved in the temporary directory and the error names
+    that file."""
+    rescue = tmp_path / "tmp"
+    rescue.mkdir()
+    monkeypatch.setattr(tempfile, "tempdir", str(rescue))
+    directory = tmp_path / "out"
+    directory.mkdir()
+    save = jaxmr.save_model
+
+    def save_model(model, path, **extra):
+        if Path(path).parent == directory:
+            _full_disk(path)
+        save(model, path, **extra)
+
+    monkeypatch.setattr(jaxmr, "save_model", save_model)
+    out = directory / "p.json"
+    err = _error(["fit", "--model", "dahl", "--out", out, *files], capsys)
+    (rescued,) = rescue.iterdir()
+    assert f"cannot write {str(out)!r}: {os.strerror(errno.ENOSPC)}" in err
+    assert f"the model was saved to {rescued} instead" in err
+    assert isinstance(jaxmr.load_model(rescued), jaxmr.Dahl)
+    assert json.loads(rescued.read_text())["report"]["template"] == "dahl"
+    assert _listing(directory) == []
+
+
+@pytest.mark.parametrize(
+    ("first", "second"),
+    [("fit", "signal"), ("fit", "raise"), (None, "signal")],
+)
+def test_second_ctrl_c_while_saving(
+    first, second, files, fitted, tmp_path, monkeypatch, capsys
+):
+    """A Ctrl-C (a real SIGINT) stops the fit at its third step (`first="fit"`), or
+    the fit ends; then a Ctrl-C comes while the model is written: a SIGINT, which the
+    command defers, or a `KeyboardInterrupt` raised in the write itself, which is then
+    made again. No traceback: the model is written whole and the command exits 130."""
+    if threading.current_thread() is not threading.main_thread():
+        pytest.skip("Python handles signals in the main thread only")
+    import jaxmr._identify.solver as solver
+
+    step, steps, saves = solver._step, [], []
+
+    def interrupted_step(*args):
+        steps.append(None)
+        if len(steps) == 3:
+            signal.raise_signal(signal.SIGINT)
+        return step(*args)
+
+    save = jaxmr.save_model
+
+    def interrupted_save(model, path, **extra):
+        saves.append(path)
+        if len(saves) == 1:
+            if second == "signal":
+                signal.raise_signal(signal.SIGINT)
+            else:
+                raise KeyboardInterrupt
+        save(model, path, **extra)
+
+    if first == "fit":
+        monkeypatch.setattr(solver, "_step", interrupted_step)
+    monkeypatch.setattr(jaxmr, "save_model", interrupted_save)
+    handler = signal.getsignal(signal.SIGINT)
+    out = tmp_path / "p.json"
+    try:
+        status, _ = _run(["fit", "--model", "dahl", "--out", out, *files])
+    except KeyboardInterrupt:
+        pytest.fail("the second Ctrl-C escaped `jaxmr fit`")
+    assert status == 130
+    assert signal.getsignal(signal.SIGINT) is handler  # restored
+    err = capsys.readouterr().err
+    if first == "fit":
+        assert f"interrupted; the best model so far is in {out}" in err
+    else:
+        assert f"interrupted while finishing; the fitted model is in {out}" in err
+    report = json.loads(out.read_text())["report"]
+    assert report["interrupted"] == (first == "fit")
+    assert isinstance(jaxmr.load_model(out), jaxmr.Dahl)
+    assert _listing(tmp_path) == ["p.json"]
+
+
+def _from_jax(function):
+    """`function`, called from a frame of a module named `jax.…` (as when XLA's
+    compiler polls for Ctrl-C)."""
+    namespace = {"__name__": "jax._polls_for_ctrl_c", "function": function}
+    exec("def call(*args):\n    return function(*args)\n", namespace)
+    return namespace["call"]
+
+
+@pytest.mark.parametrize("where", ["jax", "jaxmr"])
+def test_ctrl_c_while_the_fit_computes_its_report(
+    where, files, fitted, tmp_path, monkeypatch, capsys
+):
+    """A first Ctrl-C after the fit's loop, while `fit` computes its statistics (in
+    JAX, or in jaxmr's own code): not raised there, where it lost the model (and,
+    raised through XLA's compiler, crashed the process at exit); the fit completes,
+    its model is written and the command exits 130."""
+    if threading.current_thread() is not threading.main_thread():
+        pytest.skip("Python handles signals in the main thread only")
+    # The module (`jaxmr._identify.fit` is also the name of the function).
+    fit_module = importlib.import_module("jaxmr._identify.fit")
+    report = fit_module._report
+    ctrl_c = signal.raise_signal
+    if where == "jax":
+        ctrl_c = _from_jax(ctrl_c)
+
+    def interrupted(*args, **kwargs):
+        ctrl_c(signal.SIGINT)
+        return report(*args, **kwargs)
+
+    monkeypatch.setattr(fit_module, "_report", interrupted)
+    out = tmp_path / "p.json"
+    try:
+        status, _ = _run(["fit", "--model", "dahl", "--out", out, *files])
+    except KeyboardInterrupt:
+        pytest.fail("the Ctrl-C escaped `jaxmr fit`")
+    assert status == 130
+    err = capsys.readouterr().err
+    assert "Ctrl-C: stopping at the fit's next step" in err
+    assert f"interrupted while finishing; the fitted model is in {out}" in err
+    assert not json.loads(out.read_text())["report"]["interrupted"]
+    assert isinstance(jaxmr.load_model(out), jaxmr.Dahl)

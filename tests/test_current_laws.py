@@ -248,3 +248,79 @@ def test_first_order_lag_follows_a_current_step():
     u, z = np.asarray(sol.state("u")), np.asarray(sol.state("z"))
     expected_force = (100.0 + 400.0 * u) * z + 10.0 * np.asarray(sol.velocity)
     np.testing.assert_allclose(sol.force, expected_force, rtol=1e-12, atol=1e-12)
+
+
+# ---------------------------------------------------------------------------------------
+# A current outside a TableLaw's range: quoted, and one run's fault in a sweep
+
+TABLE_MODEL = jaxmr.BoucWen(
+    alpha=jaxmr.TableLaw(np.array([0.0, 1.0]), np.array([100.0, 300.0])),
+    c0=10.0,
+    A=1.0,
+    beta=50.0,
+    gamma=50.0,
+    n=2.0,
+)
+TABLE_MOTION = jaxmr.Sine(0.01, 2.0)
+TABLE_TS = jnp.linspace(0.0, 0.5, 11)
+ONE_STEP = jaxmr.FixedStep(1)
+
+
+def test_current_outside_a_table_quotes_both_ranges():
+    with pytest.raises(
+        eqx.EquinoxRuntimeError,
+        match=r"`current` leaves the current range of a TableLaw in the model: it is "
+        r"2 A, the TableLaw for `BoucWen\.alpha` covers \[0, 1\] A",
+    ):
+        jaxmr.simulate(TABLE_MODEL, TABLE_MOTION, 2.0, TABLE_TS, integrator=ONE_STEP)
+    steps = jaxmr.Steps(jnp.array([0.0, 0.2]), jnp.array([0.5, -0.25]))
+    with pytest.raises(eqx.EquinoxRuntimeError, match=r"spans \[-0\.25, 0\.5\] A"):
+        jaxmr.simulate(TABLE_MODEL, TABLE_MOTION, steps, TABLE_TS, integrator=ONE_STEP)
+    # A sweep names the offending current (and device).
+    with pytest.raises(
+        eqx.EquinoxRuntimeError,
+        match=r"`current\[1\]` leaves .* model device\[1\]: it is 1\.5 A",
+    ):
+        jaxmr.sweep(
+            [TABLE_MODEL, TABLE_MODEL],
+            TABLE_MOTION,
+            jnp.array([0.5, 1.5]),
+            TABLE_TS,
+            grid=False,
+            integrator=ONE_STEP,
+        )
+
+
+@eqx.filter_jit
+def _traced_force(model, current):
+    return jaxmr.simulate(
+        model, TABLE_MOTION, current, TABLE_TS, integrator=ONE_STEP
+    ).force
+
+
+def test_current_outside_a_table_under_jit_names_the_law():
+    # Traced, the numbers cannot be quoted; the law's place in the model can.
+    with pytest.raises(
+        eqx.EquinoxRuntimeError, match=r"TableLaw in the model \(`BoucWen\.alpha`;"
+    ):
+        _traced_force(TABLE_MODEL, jaxmr.Constant(2.0))
+
+
+def test_with_throw_false_a_current_outside_a_table_is_one_runs_result():
+    sol = jaxmr.sweep(
+        TABLE_MODEL,
+        TABLE_MOTION,
+        jnp.array([0.5, 2.0, 0.75]),
+        TABLE_TS,
+        integrator=ONE_STEP,
+        throw=False,
+    )
+    outside = np.asarray(sol.result == jaxmr.RESULTS.current_outside_table)
+    ok = np.asarray(sol.result == jaxmr.RESULTS.successful)
+    np.testing.assert_array_equal(outside, [False, True, False])
+    np.testing.assert_array_equal(ok, [True, False, True])
+    assert np.all(np.isfinite(np.asarray(sol.force)))
+    single = jaxmr.simulate(
+        TABLE_MODEL, TABLE_MOTION, 2.0, TABLE_TS, integrator=ONE_STEP, throw=False
+    )
+    assert single.result == jaxmr.RESULTS.current_outside_table

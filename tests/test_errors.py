@@ -244,6 +244,9 @@ def test_array_of_currents_names_sweep_without_typechecker():
         (lambda: bouc_wen(n=-1.0), r"BoucWen: the exponent `n` must be > 0"),
         (lambda: bouc_wen(gamma=-1.0), r"BoucWen: `gamma` must be >= 0"),
         (lambda: bouc_wen(A=0.0), r"BoucWen: `A` must be > 0"),
+        (lambda: bouc_wen(alpha=-1.0), r"BoucWen: `alpha` must be >= 0"),
+        (lambda: bouc_wen(c0=-1.0), r"BoucWen: `c0` must be >= 0"),
+        (lambda: jaxmr.Dahl(k_x=-1.0, k_w=1.0, rho=1.0), r"Dahl: `k_x` must be >= 0"),
         (lambda: jaxmr.Dahl(k_x=1.0, k_w=1.0, rho=0.0), r"Dahl: `rho` must be > 0"),
         (
             lambda: jaxmr.LuGre(
@@ -296,6 +299,9 @@ def test_array_of_currents_names_sweep_without_typechecker():
         "bw-n-neg",
         "bw-gamma",
         "bw-A",
+        "bw-alpha",
+        "bw-c0",
+        "dahl-kx",
         "dahl-rho",
         "lugre-sigma0",
         "bingham-fc",
@@ -358,10 +364,47 @@ def test_law_resolving_to_unphysical_value_at_the_run_current():
     assert np.all(np.isfinite(run(0.5).force))
     with pytest.raises(
         eqx.EquinoxRuntimeError,
-        match=r"BoucWen \(its current laws evaluated at the current at ts\[0\]\): the "
+        match=r"BoucWen \(its current laws checked over the input's range\): the "
         r"exponent `n` must be > 0",
     ):
         run(0.1)
+
+
+def test_law_checked_over_the_whole_current_range():
+    # Valid at the current at ts[0] (0.5 A), not at the one it steps down to (0.1 A,
+    # n = -0.3): the check covers every current the run reaches, not its first.
+    steps = jaxmr.Steps(jnp.array([0.0, 0.5]), jnp.array([0.5, 0.1]))
+    with pytest.raises(
+        eqx.EquinoxRuntimeError,
+        match=r"checked over the input's range\): the exponent `n` must be > 0",
+    ):
+        jaxmr.simulate(LAW_MODEL, MOTION, steps, TS)
+
+
+def test_nan_parameter_is_named():
+    # A NaN fails every comparison: named as NaN, not as a sign error.
+    with pytest.raises(ValueError, match=r"BoucWen: `alpha` is NaN or infinite"):
+        bouc_wen(alpha=float("nan"))
+    law = bouc_wen(c0=jaxmr.LinearLaw(float("nan"), 1.0))
+    with pytest.raises(eqx.EquinoxRuntimeError, match=r"`c0` is NaN or infinite"):
+        jaxmr.simulate(law, MOTION, 0.5, TS, integrator=FIXED)
+
+
+def test_closed_loop_checks_the_laws_over_the_commandable_range():
+    # n = 1.5 − 2 i: valid at 0 A (the only current the closed loop used to check),
+    # negative above 0.75 A, which a controller with i_max = 1 A may command.
+    model = bouc_wen(n=jaxmr.LinearLaw(1.5, -2.0))
+    system = jaxmr.SingleDegreeOfFreedom(2.0, model, stiffness=5e4)
+    fine = jaxmr.simulate_system(system, 0.0, 0.5, 0.01, initial_state=Q0)
+    assert np.all(np.isfinite(fine.states))
+    with pytest.raises(
+        eqx.EquinoxRuntimeError,
+        match=r"checked over the input's range\): the exponent `n` must be > 0",
+    ):
+        jaxmr.simulate_system(system, 0.0, 1.0, 0.01, initial_state=Q0)
+
+
+Q0 = jnp.array([1e-3, 0.0])  # [m, m/s]
 
 
 def test_current_outside_table_law():

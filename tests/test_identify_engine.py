@@ -160,6 +160,22 @@ def test_zero_loss_is_not_convergence_and_bad_data_is_refused():
     )
     with pytest.raises(ValueError, match="column `F` has a non-finite value"):
         jaxmr.fit(model, [bad], progress=False)
+    # A force in the wrong unit by 300 decades: its spread overflows, which used to
+    # weight it by 0 and report a loss of 0 with standard errors of 0.
+    huge = SimpleNamespace(**{**vars(run), "force": 1e300 * np.sign(run.v)})
+    with pytest.raises(ValueError, match="spread of its force overflows"):
+        jaxmr.fit(model, [huge], progress=False)
+    # No more scored samples than free parameters: underdetermined, refused.
+    columns = ("t", "x", "v", "current", "force")
+    few = SimpleNamespace(
+        **{k: np.broadcast_to(getattr(run, k), run.t.shape)[:3] for k in columns}
+    )
+    few.name = "three samples"
+    free = jaxmr.Dahl(k_x=0.01, k_w=3.0, rho=5.0)
+    with pytest.raises(ValueError, match="3 scored sample.*3 free parameter"):
+        jaxmr.fit(free, [few], progress=False)
+    with pytest.raises(ValueError, match="'three samples': 3 scored sample"):
+        jaxmr.fit_each(free, [few], progress=False)
 
 
 def test_poorly_determined_parameters_are_named():

@@ -8,9 +8,15 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 
-from .._current_law import resolve
+from .._current_law import is_law, resolve
 from .._custom_types import Array, Bool, Scalar, ScalarLike, State
 from .._misc import check_concrete, is_concrete
+
+# Currents at which a model with current laws is checked, evenly over the range the
+# input spans (both ends included): linear and exponential laws are extreme at the
+# ends, and 17 points catch the interior extremum of a quadratic or the knots of a
+# table to within 1/16 of the range.
+CHECK_CURRENTS = 17
 
 
 class AbstractHysteresis(eqx.Module):
@@ -64,6 +70,44 @@ class AbstractHysteresis(eqx.Module):
         """
         return []
 
+    def checks(self) -> list[tuple[Bool[Array, ""], str]]:
+        """Every parameter finite, named, then `constraints` (resolved parameters):
+        a NaN fails every comparison, and "`alpha` must be >= 0, got nan" would
+        blame the sign."""
+        finite = [
+            (
+                jnp.all(jnp.isfinite(value)),
+                f"`{name}` is NaN or infinite; give a finite number (for a current "
+                "law, finite coefficients).",
+            )
+            for name, value in zip(
+                (f.name for f in dataclasses.fields(self)), _parameters(self)
+            )
+            if eqx.is_inexact_array(value)
+        ]
+        return finite + self.constraints()
+
+    def checks_over(self, lo: Scalar, hi: Scalar) -> list:
+        """`(ok, message)` pairs of `checks` at every current in [lo, hi] [A or
+        V] (`CHECK_CURRENTS` points) when a parameter is a current law: a law may meet
+        a constraint at one current and break it at another (a linear $c_0(i)$
+        negative at 0 A). The messages name the model."""
+        name = type(self).__name__
+        if not any(is_law(p) for p in jax.tree.leaves(self, is_leaf=is_law)):
+            return [(ok, f"{name}: {m}") for ok, m in self.checks()]
+        lo, hi = jnp.asarray(lo), jnp.asarray(hi)
+        messages = [m for _, m in self.at(lo).checks()]
+        grid = lo + (hi - lo) * jnp.linspace(0.0, 1.0, CHECK_CURRENTS, dtype=lo.dtype)
+        oks = jax.vmap(
+            lambda i: jnp.stack([jnp.all(ok) for ok, _ in self.at(i).checks()])
+        )(grid)
+        where = f"{name} (its current laws checked over the input's range)"
+        # The value a message quotes is the one at `lo`, maybe not where it failed.
+        return [
+            (jnp.all(oks[:, k]), f"{where}: {m.partition(', got ')[0].rstrip('.')}.")
+            for k, m in enumerate(messages)
+        ]
+
     def __check_init__(self):
         # Only parameters given as plain numbers can be checked before a current is known
         # (laws) or before a fit resolves them (constraint wrappers).
@@ -72,7 +116,7 @@ class AbstractHysteresis(eqx.Module):
         if not is_concrete(self):
             return
         with jax.ensure_compile_time_eval():
-            constraints = self.constraints()
+            constraints = self.checks()
         for ok, message in constraints:
             check_concrete(ok, f"{type(self).__name__}: {message}", self)
 

@@ -97,6 +97,16 @@ class BoucWen(AbstractHysteresis):
                 f"`gamma` must be >= 0 (a negative value generates energy), got "
                 f"{self.gamma}.",
             ),
+            (
+                self.alpha >= 0,
+                f"`alpha` must be >= 0 (a negative value generates energy), got "
+                f"{self.alpha}.",
+            ),
+            (
+                self.c0 >= 0,
+                f"`c0` must be >= 0 (a negative dashpot generates energy), got "
+                f"{self.c0}.",
+            ),
         ]
 
     def normalized(self) -> "NormalizedBoucWen":
@@ -178,6 +188,16 @@ class NormalizedBoucWen(AbstractHysteresis):
             (self.n > 0, f"the exponent `n` must be > 0, got {self.n}."),
             (self.rho > 0, f"`rho` must be > 0, got {self.rho}."),
             (self.sigma >= 0, f"`sigma` must be >= 0, got {self.sigma}."),
+            (
+                self.c0 >= 0,
+                f"`c0` must be >= 0 (a negative dashpot generates energy), got "
+                f"{self.c0}.",
+            ),
+            (
+                self.kappa_w >= 0,
+                f"`kappa_w` must be >= 0 (a negative value generates energy), got "
+                f"{self.kappa_w}.",
+            ),
         ]
 
     def to_bouc_wen(self, A=1.0) -> BoucWen:

@@ -66,11 +66,23 @@ class BoucWenBaberNoori(AbstractHysteresis):
         z, energy = state[0], state[1]
         nu = 1 + self.delta_nu * energy
         eta = 1 + self.delta_eta * energy
-        A = self.A0 - self.delta_A * energy
+        # Degradation ends at A = 0 (no restoring capacity left): a negative A would
+        # generate energy, and z_u = (A/...)^(1/n) of it is NaN.
+        A = jnp.maximum(self.A0 - self.delta_A * energy, 0.0)
         zeta1 = self.zeta_s * (1 - jnp.exp(-self.p * energy))
         zeta2 = (self.psi + self.delta_psi * energy) * (self.lam + zeta1)
-        z_u = (A / (nu * (self.beta + self.gamma))) ** (1 / self.n)
-        h = 1 - zeta1 * jnp.exp(-(((z * jnp.sign(v) - self.q * z_u) / zeta2) ** 2))
+        # z_u only shapes the pinching: without pinching (zeta1 = 0) or once A = 0 it
+        # is not evaluated at all, so neither its value nor its gradient (d/dn of
+        # 0^(1/n) is infinite) can turn into NaN.
+        pinched = (zeta1 != 0) & (A > 0)
+        safe_A = jnp.where(pinched, A, 1.0)
+        safe_sum = jnp.where(pinched, nu * (self.beta + self.gamma), 1.0)
+        z_u = jnp.where(pinched, (safe_A / safe_sum) ** (1 / self.n), 0.0)
+        h = jnp.where(
+            pinched,
+            1 - zeta1 * jnp.exp(-(((z * jnp.sign(v) - self.q * z_u) / zeta2) ** 2)),
+            1.0,
+        )
         # `bouc_wen_rate` with A/nu, scaled by nu, is A v - nu (γ|v|z|z|^(n-1) + β v|z|^n).
         z_rate = (
             h * nu * bouc_wen_rate(z, v, A / nu, self.beta, self.gamma, self.n) / eta
@@ -94,6 +106,16 @@ class BoucWenBaberNoori(AbstractHysteresis):
             (
                 self.beta + self.gamma > 0,
                 f"`beta + gamma` must be > 0, got beta={self.beta}, gamma={self.gamma}.",
+            ),
+            (self.k >= 0, f"`k` must be >= 0, got {self.k}."),
+            (
+                (self.alpha >= 0) & (self.alpha <= 1),
+                f"`alpha` (post/pre-yield ratio) must be in [0, 1], got {self.alpha}.",
+            ),
+            (
+                self.c >= 0,
+                f"`c` must be >= 0 (a negative dashpot generates energy), got "
+                f"{self.c}.",
             ),
             (self.psi > 0, f"`psi` must be > 0 (pinching width), got {self.psi}."),
             (self.lam > 0, f"`lam` must be > 0, got {self.lam}."),

@@ -42,4 +42,16 @@ class Dahl(AbstractHysteresis):
         return jnp.ones((1,), dtype=jnp.result_type(self.rho))
 
     def constraints(self):
-        return [(self.rho > 0, f"`rho` must be > 0, got {self.rho}.")]
+        return [
+            (self.rho > 0, f"`rho` must be > 0, got {self.rho}."),
+            (
+                self.k_x >= 0,
+                f"`k_x` must be >= 0 (a negative dashpot generates energy), got "
+                f"{self.k_x}.",
+            ),
+            (
+                self.k_w >= 0,
+                f"`k_w` must be >= 0 (a negative friction force generates energy), "
+                f"got {self.k_w}.",
+            ),
+        ]

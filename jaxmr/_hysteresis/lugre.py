@@ -63,6 +63,11 @@ class LuGre(AbstractHysteresis):
         return [
             (self.sigma0 > 0, f"`sigma0` must be > 0, got {self.sigma0}."),
             (self.sigma1 >= 0, f"`sigma1` must be >= 0, got {self.sigma1}."),
+            (
+                self.sigma2 >= 0,
+                f"`sigma2` must be >= 0 (a negative viscous term generates energy), "
+                f"got {self.sigma2}.",
+            ),
             (self.F_c > 0, f"`F_c` must be > 0, got {self.F_c}."),
             (self.F_s > 0, f"`F_s` must be > 0, got {self.F_s}."),
             (self.v_s > 0, f"`v_s` must be > 0, got {self.v_s}."),

@@ -102,6 +102,11 @@ def spencer_constraints(self):
             self.beta + self.gamma > 0,
             f"`beta + gamma` must be > 0, got beta={self.beta}, gamma={self.gamma}.",
         ),
+        (
+            self.alpha >= 0,
+            f"`alpha` must be >= 0 (a negative value generates energy), got "
+            f"{self.alpha}.",
+        ),
         (self.c0 > 0, f"`c0` must be > 0, got {self.c0}."),
         (self.c1 > 0, f"`c1` must be > 0, got {self.c1}."),
     ]

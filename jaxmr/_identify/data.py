@@ -371,7 +371,14 @@ def pack(
                 f"{names[k]!r}."
             )
         if weighting == "nrmse":
-            scale = float(np.std(force[keep]))
+            with np.errstate(over="ignore"):
+                scale = float(np.std(force[keep]))
+            if not np.isfinite(scale):
+                raise ValueError(
+                    f"experiment {names[k]!r}: the spread of its force overflows "
+                    f"float64 (largest |F| = {np.max(np.abs(force)):.3g}); check the "
+                    "force's unit (jaxmr expects N or N·m)."
+                )
             if not scale > 0:
                 raise ValueError(
                     f"experiment {names[k]!r} has a constant force where it is scored: "

@@ -2,7 +2,6 @@
 squares — the entry points that tie the stages together (data → residual → solver →
 result)."""
 
-import warnings
 from collections.abc import Callable, Sequence
 
 import equinox as eqx
@@ -14,6 +13,7 @@ import optimistix as optx
 from .._current_law import ConstantLaw, is_law
 from .._damper import Damper
 from .._hysteresis import AbstractHysteresis
+from .._misc import warn_if_float32
 from .._parameter import free_filter
 from .data import StepPolicy, as_step_policy, pack, pad_all, stack
 from .residual import residuals, simulate_jit
@@ -31,17 +31,6 @@ from .solver import (
 
 def _scaled_residuals(y, static, data, scale):
     return residuals(multiply(y, scale), static, data)
-
-
-def warn_if_float32(what: str, stacklevel: int = 3) -> None:
-    if jnp.result_type(float) != jnp.float64:
-        warnings.warn(
-            f"{what} is running in float32: identification needs float64 (solver "
-            "tolerances, Jacobian conditioning, accumulated time). Call "
-            "jax.config.update('jax_enable_x64', True) before creating arrays.",
-            UserWarning,
-            stacklevel=stacklevel,
-        )
 
 
 def _check_current_laws(model, experiments) -> None:
@@ -67,6 +56,20 @@ def _check_current_laws(model, experiments) -> None:
             "current cannot be identified from one current. Give experiments at "
             "several currents, or replace the laws by plain parameters (or "
             "jaxmr.Fixed laws) for a single-current fit."
+        )
+
+
+def _check_enough_data(free, data, where: str = "") -> None:
+    """More scored samples than free parameters, or the fit is underdetermined: its
+    standard errors divide by n − p (a 3-sample file fitted with 5 parameters reported
+    a 6e7 % standard error as if it were a result)."""
+    p = sum(int(np.size(leaf)) for leaf in jax.tree.leaves(free))
+    n = sum(data.kept_counts)
+    if n <= p:
+        raise ValueError(
+            f"{where}{n} scored sample(s) for {p} free parameter(s): a least-squares "
+            "fit needs more samples than parameters. Give longer experiments (or a "
+            "smaller `discard`), or fix parameters with jaxmr.Fixed."
         )
 
 
@@ -188,6 +191,7 @@ def fit(
         weighting=weighting, discard=discard, smoothing=smoothing, lanes=lanes
     )
     data = pack(experiments, policy, **options)
+    _check_enough_data(free, data)
     _check_current_laws(model, experiments)
     if solver is None:
         solver = FastLevenbergMarquardt(rtol=rtol, atol=atol)
@@ -286,6 +290,8 @@ def fit_each(
         for d, w in zip(discards, widths)
     ]
     problems = [pack([e], policy, **o) for e, o in zip(experiments, options)]
+    for problem in problems:
+        _check_enough_data(free, problem, f"experiment {problem.names[0]!r}: ")
     devices = jax.local_devices()
     sharded = shard and len(devices) > 1
     count = -(-n // len(devices)) * len(devices) if sharded else n
