@@ -308,9 +308,10 @@ def test_models_on_a_box_of_parameters(name):
 
 @pytest.mark.xfail(
     strict=True,
-    reason="known bug, found by the box above: Spencer with n near 1 and a stiff "
-    "gamma (z saturating within 6 µm) has NaN gradients under Adaptive (FixedStep "
-    "gives finite ones); not yet located",
+    reason="known bug, found by the box above: Spencer with n <= 1 and a stiff z "
+    "(gamma|u| ~ 1e4 1/s: NaN from gamma = 1.6e5 1/m on, finite at 1e5 or at n = 1.3) "
+    "has NaN gradients under Adaptive (explicit Tsit5); FixedStep and Stiff() give "
+    "finite ones; not yet located",
 )
 def test_spencer_gradients_near_n_1_under_adaptive():
     model = jaxmr.Spencer(

@@ -3,7 +3,14 @@
 
 Short runs (1 s roads, two of them) keep the compile and run time small; the physics
 (that tuning helps on held-out roads) is checked at scale in notebook 04 and the
-benchmark."""
+benchmark, and here on two held-out roads of the same length.
+
+The tuned controllers are scored by `evaluate`, independently of the losses the tuners
+report. The skyhook starts far from its optimum (c_sky = 20 kN·s/m, training loss
+0.86 m/s², against 0.65 between 1 and 3 kN·s/m), so that the improvements asserted are
+the trend's, well beyond the ripple a small change of gain causes (notebook 04): from
+c_sky = 300 N·s/m, where the trend is flat, the gradient points the wrong way and
+four steps gain 0.2 %."""
 
 import jax
 import jax.numpy as jnp
@@ -22,39 +29,70 @@ def roads(seeds):
 
 
 TRAIN = roads([0, 1])
+# Held-out roads: as many as the training set, so `evaluate` reuses its compilation.
+HELD_OUT = roads([2, 3])
+# A start ten times too stiff (see the module docstring).
+FAR = jaxmr.Skyhook(20_000.0, 1.0)
 
 
 def c_sky(pair):
     return pair[1].c_sky
 
 
-def test_tune_improves_the_training_loss_and_keeps_the_best():
-    start = jaxmr.Skyhook(300.0, 1.0)
-    result = jaxmr.tune(
-        CAR,
-        start,
-        TRAIN,
-        T,
-        parameters=c_sky,
-        steps=4,
-        learning_rate=0.5,
-        progress=False,
-    )
-    assert result.loss < result.initial_loss
-    assert list(result.history) == sorted(result.history, reverse=True)
+def mean_comfort(controller, roads_=TRAIN):
+    return float(np.mean(jaxmr.evaluate(CAR, controller, roads_, T)["comfort"]))
+
+
+def test_tune_improves_the_loss_and_keeps_the_best():
+    # Adam steps of 1.5 in log c_sky: the second lands near the optimum (1.4 kN·s/m)
+    # and the third goes past it, so the best point is not the last.
+    def run(steps):
+        return jaxmr.tune(
+            CAR,
+            FAR,
+            TRAIN,
+            T,
+            parameters=c_sky,
+            steps=steps,
+            learning_rate=1.5,
+            progress=False,
+        )
+
+    result = run(4)
     assert result.simulations == 4 * 2
-    # The reported loss is that of the returned controller.
-    again = jaxmr.evaluate(CAR, result.controller, TRAIN, T)["comfort"]
-    assert float(np.mean(again)) == pytest.approx(result.loss, rel=1e-10)
     assert isinstance(result.controller, jaxmr.Skyhook)
+    # The reported losses are those of the start and of the returned controller.
+    assert result.initial_loss == pytest.approx(mean_comfort(FAR), rel=1e-10)
+    assert result.loss == pytest.approx(mean_comfort(result.controller), rel=1e-10)
+    # Lower by the trend: 24 % measured; 15 % is beyond any ripple.
+    assert result.loss < 0.85 * result.initial_loss, (result.loss, result.initial_loss)
+    # On roads it did not see, better than the start by 10 % (14 % measured).
+    held_out = mean_comfort(result.controller, HELD_OUT)
+    assert held_out < 0.9 * mean_comfort(FAR, HELD_OUT), held_out
+    # Keeps the best: the fourth evaluation did not improve (the premise, asserted),
+    # and the result is the third point, as a run stopped there returns it; a tuner
+    # returning its last point would give another gain and a higher loss.
+    assert result.history[3] == result.history[2], result.history
+    assert result.history[2] < result.history[1], result.history
+    three = run(3)
+    assert float(result.values[0]) == float(three.values[0])
+    assert result.loss == three.loss
 
 
-def test_random_search_spends_the_same_budget():
-    start = jaxmr.Skyhook(300.0, 1.0)
-    search = jaxmr.random_search(CAR, start, TRAIN, T, parameters=c_sky, simulations=6)
+def test_random_search_spends_the_budget_and_returns_its_best():
+    search = jaxmr.random_search(CAR, FAR, TRAIN, T, parameters=c_sky, simulations=6)
     assert search.simulations == 6
     assert len(search.history) == 3
-    assert search.loss <= search.initial_loss
+    # The reported losses are those of the start and of the returned controller.
+    assert search.initial_loss == pytest.approx(mean_comfort(FAR), rel=1e-10)
+    assert search.loss == pytest.approx(mean_comfort(search.controller), rel=1e-10)
+    # A candidate within the default spread (10x) of the start, and a better one: with
+    # the default key the second candidate (2.9 kN·s/m) lowers the loss by 24 %; 15 %
+    # is beyond any ripple, so a search that never moved, or scored its candidates at
+    # the wrong gains, fails.
+    value = float(search.values[0])
+    assert 20_000.0 / 10 <= value <= 20_000.0 * 10 and value != 20_000.0, value
+    assert search.loss < 0.85 * search.initial_loss, (search.loss, search.initial_loss)
 
 
 def test_tuning_gradient_matches_finite_differences():
@@ -94,8 +132,20 @@ def test_current_schedule_tuned_in_value_space():
         learning_rate=0.5,
         progress=False,
     )
-    assert result.loss < result.initial_loss
     assert result.controller.logits.shape == (samples,)
+    # Every constant current's loss on the road (one compilation: array currents).
+    constants = {
+        i: mean_comfort(jaxmr.ConstantCurrent(jnp.asarray(i), jnp.asarray(1.0)), one)
+        for i in (0.0, 0.05, 0.1, 0.2)
+    }
+    # The constant schedule is the constant current: its loss, computed independently.
+    assert result.initial_loss == pytest.approx(constants[0.1], rel=1e-9)
+    # Three steps lower the loss by 16 % (a schedule's landscape is smooth: open loop);
+    # 10 % asserted. The tuned schedule also beats every constant current on the road
+    # (the best, 0 A, by 10 %; 5 % asserted).
+    assert result.loss < 0.9 * result.initial_loss, (result.loss, result.initial_loss)
+    best_constant = min(constants.values())
+    assert result.loss < 0.95 * best_constant, (result.loss, best_constant)
 
 
 def test_bad_tuning_input():
