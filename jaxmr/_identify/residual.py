@@ -5,6 +5,8 @@ One simulation path serves `fit`, `fit_each`, `predict`, `compare_models` and
 `record_nrmse`: `simulate` below.
 """
 
+import functools
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -18,13 +20,23 @@ from .data import FitData
 DIVERGED = 1e6
 
 
-def _lane(damper, inputs, step, reset):
-    """Force at the start of every step of one lane (RK4; state reset where `reset`)."""
+def _lane(damper, inputs, step, reset, experiments: int):
+    """Force at the start of every step of one lane (RK4; state reset where `reset`,
+    at most `experiments` times)."""
+    # The states to reset to, computed before the scan for the lane's experiments
+    # only and read in it: evaluated inside (under `where`), `initial_state` ran on
+    # every step, and a `MagneticStage` traces its virgin magnetisation curve (64 RK4
+    # steps) for it, which made every step of a fit about 65 times dearer.
+    starts = jnp.nonzero(reset, size=experiments, fill_value=0)[0]
+    virgin = jax.vmap(lambda s: damper.initial_state(*s[0]))(inputs[starts])
+    # Each step's experiment (padding lanes, reset at every step, read the last).
+    which = jnp.clip(jnp.cumsum(reset) - 1, 0, experiments - 1)
+    first = virgin[which]
 
     def body(y, xs):
-        stage, h, start = xs
+        stage, h, start, y_start = xs
         (x0, v0, i0), (xm, vm, im), (x1, v1, i1) = stage
-        y = jnp.where(start, damper.initial_state(x0, v0, i0).astype(y.dtype), y)
+        y = jnp.where(start, y_start.astype(y.dtype), y)
         force = damper.force(y, x0, v0, i0)
         k1 = damper.rates(y, x0, v0, i0)
         k2 = damper.rates(y + (h / 2) * k1, xm, vm, im)
@@ -36,7 +48,7 @@ def _lane(damper, inputs, step, reset):
     y0 = damper.initial_state(x0, v0, i0)
     if y0.shape[0] == 0:  # a static model (Bingham): no state to integrate
         return jax.vmap(lambda s: damper.force(y0, *s[0]))(inputs)
-    _, force = jax.lax.scan(body, y0.astype(inputs.dtype), (inputs, step, reset))
+    _, force = jax.lax.scan(body, y0.astype(inputs.dtype), (inputs, step, reset, first))
     return force
 
 
@@ -44,7 +56,8 @@ def simulate(model, data: FitData) -> jax.Array:
     """The model's force [N] (torque [N·m]) at every sample of the packed experiments,
     smoothed like the data where `data` says so (constraint wrappers resolved)."""
     damper = as_damper(unwrap(model))
-    lanes = jax.vmap(_lane, in_axes=(None, 0, 0, 0))(
+    lane = functools.partial(_lane, experiments=len(data.offsets))
+    lanes = jax.vmap(lane, in_axes=(None, 0, 0, 0))(
         damper, data.inputs, data.step, data.reset
     )
     force = lanes.reshape(-1)[data.sample_index]
