@@ -158,6 +158,23 @@ def _log(lo, hi):
     return st.floats(np.log(lo), np.log(hi)).map(lambda u: float(np.exp(u)))
 
 
+def _spencer(cls, alpha, c0, c1, gamma, beta, n, **extra):
+    """A Spencer-type model without accumulator (k0 = k1 = x0 = 0), A = 1."""
+    return cls(
+        alpha=alpha,
+        c0=c0,
+        k0=0.0,
+        c1=c1,
+        k1=0.0,
+        x0=0.0,
+        gamma=gamma,
+        beta=beta,
+        A=1.0,
+        n=n,
+        **extra,
+    )
+
+
 # name: (the model from its numbers, a strategy per number).
 MODEL_BOXES = {
     # The boxes span each parameter's physical range for a damper moving ±10 mm at
@@ -174,18 +191,7 @@ MODEL_BOXES = {
         st.floats(0.5, 3.0),
     ),
     "spencer": (
-        lambda a, c0, c1, g, b, n: jaxmr.Spencer(
-            alpha=a,
-            c0=c0,
-            k0=0.0,
-            c1=c1,
-            k1=0.0,
-            x0=0.0,
-            gamma=g,
-            beta=b * g,
-            A=1.0,
-            n=n,
-        ),
+        lambda a, c0, c1, g, b, n: _spencer(jaxmr.Spencer, a, c0, c1, g, b * g, n),
         _log(1e2, 1e6),
         _log(1e1, 1e4),
         _log(1e3, 1e6),
@@ -195,18 +201,8 @@ MODEL_BOXES = {
         st.floats(1.2, 3.0),
     ),
     "shear_thinning_spencer": (
-        lambda a, c0, c1, g, n, e0: jaxmr.ShearThinningSpencer(
-            alpha=a,
-            c0=c0,
-            k0=0.0,
-            c1=c1,
-            k1=0.0,
-            x0=0.0,
-            gamma=g,
-            beta=g,
-            A=1.0,
-            n=n,
-            e0=e0,
+        lambda a, c0, c1, g, n, e0: _spencer(
+            jaxmr.ShearThinningSpencer, a, c0, c1, g, g, n, e0=e0
         ),
         _log(1e2, 1e6),
         _log(1e1, 1e4),
