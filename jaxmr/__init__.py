@@ -59,6 +59,7 @@ from ._control import (
     ContinuousClippedOptimal as ContinuousClippedOptimal,
     CurrentSchedule as CurrentSchedule,
     DamperPlant as DamperPlant,
+    ForceFeedback as ForceFeedback,
     Groundhook as Groundhook,
     Hybrid as Hybrid,
     LyapunovController as LyapunovController,
@@ -66,6 +67,7 @@ from ._control import (
     OnOffSkyhook as OnOffSkyhook,
     PowerDrivenDamper as PowerDrivenDamper,
     Skyhook as Skyhook,
+    feature_scales as feature_scales,
     lqr as lqr,
     quarter_car_state_space as quarter_car_state_space,
     solve_lyapunov as solve_lyapunov,
@@ -173,6 +175,7 @@ from ._systems.oscillator import (
 )
 from ._tune import (
     TuneResult as TuneResult,
+    cma_es as cma_es,
     comfort as comfort,
     evaluate as evaluate,
     random_search as random_search,

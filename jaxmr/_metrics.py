@@ -25,9 +25,11 @@ TWO_PI = 2 * math.pi  # a Python float: weakly typed under strict promotion
 
 
 def _safe_root(x, p):
-    r"""$x^{1/p}$ for $x \ge 0$ with a zero (not infinite) derivative at $x = 0$."""
+    r"""$x^{1/p}$ for $x \ge 0$ with a zero (not infinite) derivative at $x = 0$; NaN
+    stays NaN (a diverged run must not score 0)."""
     positive = x > 0
-    return jnp.where(positive, jnp.where(positive, x, 1.0) ** (1.0 / p), 0.0)
+    root = jnp.where(positive, x, 1.0) ** (1.0 / p)
+    return jnp.where(positive, root, jnp.where(jnp.isnan(x), x, 0.0))
 
 
 def rms(x: Float[ArrayLike, "*batch samples"]) -> Float[Array, "*batch"]:

@@ -373,9 +373,11 @@ def test_relaxed_gradient_is_nonzero_and_matches_finite_differences(case):
     assert float(hard) == 0.0
     soft = jax.grad(cmd)(one, jnp.asarray(0.2))
     assert abs(float(soft)) > 1e-6 * I_MAX
-    # Central differences, step 1e-6 of a smooth function: error ~1e-9 relative.
+    # Central differences, step 1e-6 of a smooth function: truncation ~1e-12
+    # relative, rounding ~1e-16 |command| / 1e-6 = 1e-10 absolute (commands of a few
+    # volts), hence the absolute tolerance for small gradients.
     fd = finite_difference_jvp(lambda s: cmd(s, jnp.asarray(0.2)), one, one, eps=1e-6)
-    np.testing.assert_allclose(soft, fd, rtol=1e-6)
+    np.testing.assert_allclose(soft, fd, rtol=1e-6, atol=1e-9)
     # The relaxed command stays in the range and tends to the hard one as T -> 0.
     assert 0.0 <= float(cmd(one, jnp.asarray(0.2))) <= I_MAX
     np.testing.assert_allclose(
@@ -394,6 +396,81 @@ def test_with_temperature_sets_every_law_that_has_one():
     assert float(soft["hybrid"].temperature) == 0.25
     assert soft["passive"] is laws["passive"]
     assert float(with_temperature(soft["sky"], 0.0).temperature) == 0.0
+
+
+# ------------------------------------------------------------- force feedback
+
+FEATURES = ("body_velocity", "body_acceleration", "damper_velocity")
+FEATURE_SCALES = (0.1, 1.0, 0.3)
+
+
+def _with_weights(law, weights):
+    return eqx.tree_at(lambda c: c.network.weights, law, jnp.asarray(weights))
+
+
+def test_force_feedback_spans_skyhook_and_starts_at_the_lowest_force():
+    # F* = F_y (w / s) body_velocity is skyhook with c_sky = w F_y / s: the same
+    # command in every state, the relaxed law included.
+    yield_force = float(P_MID.yield_force(jnp.asarray(I_MAX)))
+    assert yield_force > 0
+    law = jaxmr.ForceFeedback.linear(FEATURE_SCALES, I_MAX, features=FEATURES)
+    w = 0.3
+    c_sky = w * yield_force / FEATURE_SCALES[0]
+    states = [P_MID, plant(x=0.002, v=-0.2, z=-0.004), plant(v=0.01, z=0.0)]
+    for p in states:
+        for body in (-0.3, 0.05, 0.4):
+            m = measurement(body_velocity=body, body_acceleration=2.0)
+            for t in (0.0, 0.1):
+                sky = Skyhook(c_sky, I_MAX, t)
+                mine = _with_weights(law, [w, 0.0, 0.0])
+                mine = eqx.tree_at(lambda c: c.temperature, mine, jnp.asarray(t))
+                assert command(mine, m, p=p) == pytest.approx(
+                    command(sky, m, p=p), rel=1e-12, abs=1e-15
+                )
+        # At its start (every weight 0) the desired force is 0: below the band, 0 A.
+        assert command(law, measurement(body_velocity=0.3), p=p) == 0.0
+
+
+def test_force_feedback_mlp_starts_at_zero_with_a_gradient():
+    law = jaxmr.ForceFeedback.mlp(
+        FEATURE_SCALES, I_MAX, features=FEATURES, width=4, depth=1, temperature=0.2
+    )
+    weights = jaxmr.ForceFeedback.weights((None, law))
+    assert [w.shape for w in weights] == [(3,), (4, 3), (4,), (1, 4), (1,)]
+    m = measurement(body_velocity=0.2, body_acceleration=-1.0, damper_velocity=0.1)
+    assert float(law.desired_force(m, 1000.0)) == 0.0
+
+    def cmd(ws):
+        tuned = eqx.tree_at(lambda c: jaxmr.ForceFeedback.weights((None, c)), law, ws)
+        return tuned(m, (), P_MID)[0]
+
+    grads = jax.grad(cmd)(weights)
+    # The linear gains' gradient is the features times d command/d F*, the output
+    # layer's the hidden activations times it: both nonzero at the start, so tuning
+    # can leave it.
+    assert np.any(np.abs(np.asarray(grads[0])) > 0)
+    assert np.any(np.abs(np.asarray(grads[3])) > 0)
+
+
+def test_force_feedback_bad_input_is_named():
+    with pytest.raises(ValueError, match="one size per feature"):
+        jaxmr.ForceFeedback.linear((0.1, 1.0), I_MAX, features=FEATURES)
+    with pytest.raises(ValueError, match="every scale must be > 0"):
+        jaxmr.ForceFeedback.linear((0.1, 0.0, 1.0), I_MAX, features=FEATURES)
+
+
+def test_yield_force_is_the_saturated_hysteretic_force():
+    # Quasi-static strokes far beyond yield: at the stroke's end the hysteretic
+    # force has saturated, so F - (viscous and elastic parts) reaches the yield force.
+    bw = jaxmr.BoucWen(alpha=800.0, c0=0.0, A=1.0, beta=3000.0, gamma=3000.0, n=2.0)
+    dahl = jaxmr.Dahl(k_x=0.0, k_w=500.0, rho=400.0)
+    for model in (bw, dahl):
+        ts = jnp.linspace(0.0, 2.0, 2001)
+        sol = jaxmr.simulate(model, jaxmr.Sine(0.05, 0.5), ts=ts)
+        peak = float(jnp.max(sol.force))
+        # A 10 cm stroke saturates z to within 1e-6: Dahl approaches its bound as
+        # exp(-rho x), Bouc-Wen (n = 2) as tanh(sqrt(A (beta + gamma)) x), 77 /m.
+        assert peak == pytest.approx(float(model.yield_force()), rel=1e-3)
 
 
 # ---------------------------------------------------------------- closed loop

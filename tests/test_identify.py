@@ -77,6 +77,53 @@ def test_seven_brake_parameters_recovered(synthetic):
         assert abs(value - true[name]) < 4 * se + 1e-12, (name, value, se)
     assert isinstance(result.model, jaxmr.BoucWen)
     assert "alpha" in result.table()
+    _check_samples(result)
+
+
+def _check_samples(result):
+    # `FitResult.sample` (robust tuning's input): every value drawn log-normal around
+    # the fit with the fit's relative standard errors; fixed parameters repeated.
+    import jax
+
+    n = 4000
+    models = result.sample(n, jax.random.key(0))
+    assert models.alpha.a.shape == (n,) and models.A.shape == (n,)
+    np.testing.assert_array_equal(models.A, result.model.A)
+    draws = np.stack(
+        [
+            models.alpha.a,
+            models.alpha.b,
+            models.c0.a,
+            models.c0.b,
+            models.beta,
+            models.gamma,
+            models.n,
+        ],
+        axis=1,
+    )
+    assert list(result.names) == [
+        ".alpha.a",
+        ".alpha.b",
+        ".c0.a",
+        ".c0.b",
+        ".beta",
+        ".gamma",
+        ".n",
+    ]
+    assert np.all(draws > 0)
+    logs = np.log(draws)
+    # The median of a log-normal is the fitted value; with 4000 draws its estimate
+    # lies within 4 sigma/sqrt(n) (times 1.25 for the median's efficiency).
+    relative = result.std_errors / result.values
+    tol = 4 * 1.25 * relative / np.sqrt(n)
+    np.testing.assert_array_less(
+        np.abs(np.median(logs, axis=0) - np.log(result.values)), tol + 1e-15
+    )
+    # The spread and the correlations are the fit's (sampling error ~2 % at n=4000).
+    np.testing.assert_allclose(np.std(logs, axis=0), relative, rtol=0.1)
+    np.testing.assert_allclose(
+        np.corrcoef(logs.T), np.nan_to_num(result.correlation), atol=0.1
+    )
 
 
 def test_eight_brake_parameters_flagged_as_not_identified(synthetic):

@@ -137,6 +137,15 @@ def test_metrics_batch_and_gradients():
     np.testing.assert_allclose(traced, wk_weighted(a, dt), rtol=1e-12, atol=1e-14)
 
 
+def test_a_diverged_run_scores_nan_not_zero():
+    # A run that went NaN must not look like a perfectly still body: rms, wk_rms and
+    # vdv of a signal with a NaN are NaN (the guarded root once turned them into 0).
+    a = np.sin(np.arange(200) * 0.1)
+    a[50:] = np.nan
+    for value in (rms(a), wk_rms(a, 1e-3), vdv(a, 1e-3)):
+        assert np.isnan(float(value)), value
+
+
 def test_settling_time_of_a_decaying_exponential():
     tau, tol, dt = 0.5, 0.02, 0.01
     t = np.arange(501) * dt

@@ -197,8 +197,7 @@ MODEL_BOXES = {
         _log(1e3, 1e6),
         _log(1e1, 1e6),
         st.floats(-0.9, 5.0),
-        # n from 1.2: near n = 1 see the xfail below.
-        st.floats(1.2, 3.0),
+        st.floats(0.5, 3.0),
     ),
     "shear_thinning_spencer": (
         lambda a, c0, c1, g, n, e0: _spencer(
@@ -208,7 +207,7 @@ MODEL_BOXES = {
         _log(1e1, 1e4),
         _log(1e3, 1e6),
         _log(1e1, 1e4),
-        st.floats(1.2, 3.0),
+        st.floats(0.5, 3.0),
         _log(1e-2, 1e2),
     ),
     "normalized_bouc_wen": (
@@ -302,14 +301,10 @@ def test_models_on_a_box_of_parameters(name):
     check()
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="known bug, found by the box above: Spencer with n <= 1 and a stiff z "
-    "(gamma|u| ~ 1e4 1/s: NaN from gamma = 1.6e5 1/m on, finite at 1e5 or at n = 1.3) "
-    "has NaN gradients under Adaptive (explicit Tsit5); FixedStep and Stiff() give "
-    "finite ones; not yet located",
-)
 def test_spencer_gradients_near_n_1_under_adaptive():
+    """Found by the box above: with n <= 1 and a stiff z (gamma |u| ~ 1e4 1/s) an
+    overlong trial step of Adaptive overflowed to inf; rejected, it still put
+    0 * inf = nan into every gradient (the Spencer rates now clip z to 1e3 z0)."""
     model = jaxmr.Spencer(
         alpha=148.4,
         c0=20.1,
@@ -324,4 +319,5 @@ def test_spencer_gradients_near_n_1_under_adaptive():
     )
     sol, grad = _force_and_gradient(model)
     assert sol.result == jaxmr.RESULTS.successful and np.all(np.isfinite(sol.force))
-    assert np.isfinite(float(grad.alpha))
+    leaves = jax.tree.leaves(eqx.filter(grad, eqx.is_inexact_array))
+    assert all(np.all(np.isfinite(g)) for g in leaves), grad

@@ -12,6 +12,7 @@ the trend's, well beyond the ripple a small change of gain causes (notebook 04):
 c_sky = 300 N·s/m, where the trend is flat, the gradient points the wrong way and
 four steps gain 0.2 %."""
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -95,24 +96,104 @@ def test_random_search_spends_the_budget_and_returns_its_best():
     assert search.loss < 0.85 * search.initial_loss, (search.loss, search.initial_loss)
 
 
+def _setup(where, space=True):
+    from jaxmr._tune.loss import Setup
+    from jaxmr._tune.space import as_tuple_where
+
+    return Setup(space, as_tuple_where(where), jaxmr.comfort, T, 1e-3, 4, 1)
+
+
 def test_tuning_gradient_matches_finite_differences():
-    # The gradient tune follows, d loss / d log c_sky, through the relaxed on/off law's
+    # The gradient tune follows, d loss / d log i_on, through the relaxed on/off law's
     # switching condition (zero for the hard law).
-    from jaxmr._tune import _as_tuple_where, _loss, _loss_and_grad
+    from jaxmr._tune.loss import loss_and_grad, losses
 
     def i_on(pair):
         return pair[1].i_max
 
-    where = _as_tuple_where(i_on)
-    smooth = jaxmr.OnOffSkyhook(0.3, temperature=0.2)
-    args = (True, where, TRAIN, jaxmr.comfort, T, 1e-3, 4, 1)
+    setup = _setup(i_on)
+    pair = (CAR, jaxmr.OnOffSkyhook(0.3, temperature=0.2))
     x = (jnp.log(jnp.array(0.3)),)
-    value, grad = _loss_and_grad(x, (CAR, smooth), *args)
+    value, grad, _ = loss_and_grad(x, pair, None, TRAIN, setup)
     h = 1e-5
-    up = _loss((x[0] + h,), (CAR, smooth), *args)
-    down = _loss((x[0] - h,), (CAR, smooth), *args)
+    up = jnp.mean(losses((x[0] + h,), pair, None, TRAIN, setup))
+    down = jnp.mean(losses((x[0] - h,), pair, None, TRAIN, setup))
     fd = (up - down) / (2 * h)
+    # Central differences of a smooth loss at h = 1e-5: truncation ~h² and rounding
+    # ~1e-16/h, far inside 1e-5.
     assert float(grad[0]) == pytest.approx(float(fd), rel=1e-5)
+
+
+def test_a_diverged_road_drops_out_of_the_gradient_instead_of_poisoning_it():
+    # The second road's heights are NaN: its run is not finite. The loss says so
+    # (inf), and the gradient is the first road's alone, finite, not NaN.
+    from jaxmr._tune.loss import loss_and_grad
+
+    bad = jax.tree.map(lambda x: x, TRAIN)
+    bad = eqx.tree_at(lambda r: r.values, bad, TRAIN.values.at[1, 10:].set(jnp.nan))
+    pair = (CAR, jaxmr.Skyhook(2000.0, 1.0, temperature=0.1))
+    setup = _setup(c_sky)
+    x = (jnp.log(jnp.array(2000.0)),)
+    value, grad, values = loss_and_grad(x, pair, None, bad, setup)
+    assert not np.isfinite(float(values[1])) and np.isfinite(float(values[0]))
+    assert float(value) == np.inf
+    first = jax.tree.map(lambda v: v[:1], TRAIN)
+    _, alone, _ = loss_and_grad(x, pair, None, first, setup)
+    assert np.isfinite(float(grad[0])) and float(grad[0]) != 0.0
+    np.testing.assert_allclose(grad[0], alone[0], rtol=1e-12)
+
+
+def test_annealed_tuning_is_judged_on_the_hard_law():
+    # Soft from 0.3 to 0.05 over four steps, checked every second step: the losses
+    # reported are the hard law's (computed again here by `evaluate`), and the
+    # held-out loss is the returned controller's on the validation roads.
+    result = jaxmr.tune(
+        CAR,
+        FAR,
+        TRAIN,
+        T,
+        parameters=c_sky,
+        temperature=(0.3, 0.05),
+        steps=4,
+        check_every=2,
+        learning_rate=1.0,
+        validation=HELD_OUT,
+        progress=False,
+    )
+    assert float(result.controller.temperature) == 0.0
+    assert result.initial_loss == pytest.approx(mean_comfort(FAR), rel=1e-10)
+    assert result.loss == pytest.approx(mean_comfort(result.controller), rel=1e-10)
+    assert result.held_out_loss == pytest.approx(
+        mean_comfort(result.controller, HELD_OUT), rel=1e-10
+    )
+    # Four gradient evaluations and three hard checks (steps 0, 2 and the end), of
+    # two roads each.
+    assert result.simulations == (4 + 3) * 2
+    assert result.loss < 0.9 * result.initial_loss, (result.loss, result.initial_loss)
+
+
+def test_cma_es_spends_its_budget_and_stops_at_a_target():
+    search = jaxmr.cma_es(
+        CAR, FAR, TRAIN, T, parameters=c_sky, simulations=18, population=4
+    )
+    # The start (2 runs) and two generations of 4 candidates on 2 roads.
+    assert search.simulations == 2 + 2 * 8
+    assert len(search.history) == 3
+    assert search.initial_loss == pytest.approx(mean_comfort(FAR), rel=1e-10)
+    assert search.loss == pytest.approx(mean_comfort(search.controller), rel=1e-10)
+    assert search.loss < search.initial_loss
+    # A target the start already meets: no generation is spent.
+    early = jaxmr.cma_es(
+        CAR,
+        FAR,
+        TRAIN,
+        T,
+        parameters=c_sky,
+        simulations=18,
+        population=4,
+        target=search.initial_loss,
+    )
+    assert early.simulations == 2 and early.reason.startswith("reached the target")
 
 
 def test_current_schedule_tuned_in_value_space():
@@ -159,7 +240,7 @@ def test_bad_tuning_input():
             steps=1,
             progress=False,
         )
-    with pytest.raises(ValueError, match="batch of road signals"):
+    with pytest.raises(ValueError, match="batch with one leading axis"):
         jaxmr.tune(
             CAR,
             jaxmr.Skyhook(10.0, 1.0),
@@ -169,3 +250,39 @@ def test_bad_tuning_input():
             steps=1,
             progress=False,
         )
+
+
+def test_tuning_over_damper_samples_averages_over_them():
+    # Two cars whose damper's yield law is scaled by 0.6 and 1.5: the loss of a tune
+    # over them is the mean over both samples and both roads, each computed again
+    # here by `evaluate`; the tuned pair is the nominal car with the tuned law.
+    def scaled(f):
+        law = CAR.damper.hysteresis.alpha
+        return eqx.tree_at(
+            lambda s: (s.damper.hysteresis.alpha.a, s.damper.hysteresis.alpha.b),
+            CAR,
+            (f * law.a, f * law.b),
+        )
+
+    factors = jnp.array([0.6, 1.5])
+    samples = jax.vmap(scaled)(factors)
+    result = jaxmr.tune(
+        CAR,
+        FAR,
+        TRAIN,
+        T,
+        parameters=c_sky,
+        samples=samples,
+        steps=1,
+        progress=False,
+    )
+    per_sample = [
+        float(np.mean(jaxmr.evaluate(scaled(f), FAR, TRAIN, T)["comfort"]))
+        for f in (0.6, 1.5)
+    ]
+    assert result.simulations == 2 * 2
+    assert result.initial_loss == pytest.approx(np.mean(per_sample), rel=1e-10)
+    # The samples matter: the nominal car alone scores differently.
+    assert abs(result.initial_loss - mean_comfort(FAR)) > 1e-3 * mean_comfort(FAR)
+    nominal = CAR.damper.hysteresis.alpha.a
+    assert float(result.system.damper.hysteresis.alpha.a) == float(nominal)

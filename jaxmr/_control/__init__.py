@@ -9,6 +9,10 @@ from .clipped_optimal import (
     ClippedOptimal as ClippedOptimal,
     ContinuousClippedOptimal as ContinuousClippedOptimal,
 )
+from .feedback import (
+    ForceFeedback as ForceFeedback,
+    feature_scales as feature_scales,
+)
 from .groundhook import Groundhook as Groundhook, OnOffGroundhook as OnOffGroundhook
 from .hybrid import Hybrid as Hybrid
 from .lyapunov import LyapunovController as LyapunovController

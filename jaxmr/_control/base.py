@@ -34,6 +34,11 @@ class DamperPlant(eqx.Module):
         command can reach."""
         return self.force_at(jnp.zeros_like(i_max)), self.force_at(i_max)
 
+    def yield_force(self, current: Scalar) -> Scalar | None:
+        """The damper's force scale [N or N·m] at `current` [A]: its hysteresis
+        model's `yield_force` (`None` when the model states none)."""
+        return self.damper.hysteresis.at(current).yield_force()
+
     def current_for_force(self, force: Scalar, i_max: Scalar) -> Scalar:
         r"""Inverse damper model: the current [A] in $[0, I_\max]$ whose force is
         closest to `force` [N].

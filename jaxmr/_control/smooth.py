@@ -81,10 +81,16 @@ def command_for_force(
     # sign (after a reversal, while the hysteretic state swings through zero), so the
     # command, and the closed loop's loss, jump with it: a rough landscape whose
     # gradient says nothing about the trend. The relaxed ratio
-    # (F* - f0) span / (span² + (T s)²), with s the force scale |f0| + |f1| + |F*|, is
-    # the hard one wherever the band is wide compared with T s and falls smoothly to
-    # zero where it closes.
-    scale = temperature * (jnp.abs(f0) + jnp.abs(f1) + jnp.abs(force))
+    # (F* - f0) span / (span² + (T F_y)²) is the hard one wherever the band is wide
+    # compared with T F_y and falls smoothly to zero where it closes. F_y is the
+    # device's yield force at I_max: a fixed property of the damper, so the relaxation
+    # is the same function of the band everywhere (a scale built from the present
+    # forces, |f0| + |f1| + |F*|, vanishes exactly where the band closes and brought
+    # the roughness back). Models without a yield force fall back to that scale.
+    yield_force = plant.yield_force(i_max)
+    if yield_force is None:
+        yield_force = jnp.abs(f0) + jnp.abs(f1) + jnp.abs(force)
+    scale = temperature * yield_force
     den = span**2 + scale**2
     ok = den > 0
     ratio = jnp.where(ok, (force - f0) * span / jnp.where(ok, den, 1.0), 0.0)

@@ -62,6 +62,17 @@ class AbstractHysteresis(eqx.Module):
         """
         return None
 
+    def yield_force(self) -> Scalar | None:
+        """The model's force scale [N or N·m], for resolved parameters: its yield
+        (or friction) force, the force the hysteretic part holds once saturated; `None`
+        when the model states none.
+
+        The smooth relaxations of the semi-active laws measure how near the damper's
+        force band is to closing against this scale, a property of the device, so that
+        tuning's loss is smooth wherever the device is the same.
+        """
+        return None
+
     def constraints(self) -> list[tuple[Bool[Array, ""], str]]:
         """Physical-validity checks for resolved parameters: `(ok, message)` pairs.
 

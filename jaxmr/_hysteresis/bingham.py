@@ -43,6 +43,9 @@ class Bingham(AbstractHysteresis):
         direction = jnp.where(smooth, jnp.tanh(v / scale), jnp.sign(v))
         return self.f_c * direction + self.c0 * v + self.f0
 
+    def yield_force(self) -> Scalar:
+        return self.f_c
+
     def constraints(self):
         return [
             (self.f_c >= 0, f"the yield force `f_c` must be >= 0, got {self.f_c}."),

@@ -76,6 +76,11 @@ class BoucWen(AbstractHysteresis):
         z = state[0]
         return self.alpha * z + self.c0 * v + self.k0 * (x - self.x0) + self.f0
 
+    def yield_force(self) -> Scalar:
+        # alpha z0, or alpha (z in units of its growth) when z is unbounded.
+        z0 = self.state_bounds()[0]
+        return jnp.abs(self.alpha) * jnp.where(jnp.isfinite(z0), z0, 1.0)
+
     def state_bounds(self) -> Array:
         # beta + gamma <= 0 is allowed (the Noel-Schoukens benchmark oscillator has it:
         # z keeps growing while loading, which small strokes tolerate); then no bound.
@@ -179,6 +184,9 @@ class NormalizedBoucWen(AbstractHysteresis):
     def force(self, state: State, x: Scalar, v: Scalar) -> Scalar:
         w = state[0]
         return self.kappa_x * (x - self.x0) + self.kappa_w * w + self.c0 * v + self.f0
+
+    def yield_force(self) -> Scalar:
+        return self.kappa_w  # |w| <= 1
 
     def state_bounds(self) -> Array:
         return jnp.ones((1,), dtype=jnp.result_type(self.rho))

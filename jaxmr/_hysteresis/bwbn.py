@@ -98,6 +98,11 @@ class BoucWenBaberNoori(AbstractHysteresis):
             + self.f0
         )
 
+    def yield_force(self) -> Scalar:
+        # (1 - alpha) k z_u of the undegraded model.
+        z_u = (self.A0 / (self.beta + self.gamma)) ** (1 / self.n)
+        return (1 - self.alpha) * self.k * z_u
+
     def constraints(self):
         return [
             (self.n > 0, f"the exponent `n` must be > 0, got {self.n}."),

@@ -38,6 +38,9 @@ class Dahl(AbstractHysteresis):
     def force(self, state: State, x: Scalar, v: Scalar) -> Scalar:
         return self.k_x * v + self.k_w * state[0]
 
+    def yield_force(self) -> Scalar:
+        return self.k_w  # |z| <= 1
+
     def state_bounds(self):
         return jnp.ones((1,), dtype=jnp.result_type(self.rho))
 

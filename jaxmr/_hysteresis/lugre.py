@@ -55,6 +55,9 @@ class LuGre(AbstractHysteresis):
         y = state[0]
         return self.sigma0 * y + self.sigma1 * self._rate(y, v) + self.sigma2 * v
 
+    def yield_force(self) -> Scalar:
+        return jnp.maximum(self.F_c, self.F_s)
+
     def state_bounds(self):
         # y → g(v)/σ0 at steady sliding and g ≤ max(F_c, F_s).
         return (jnp.maximum(self.F_c, self.F_s) / self.sigma0)[None]

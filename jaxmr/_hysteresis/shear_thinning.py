@@ -83,6 +83,10 @@ class ShearThinningSpencer(AbstractHysteresis):
     def state_bounds(self):
         return spencer_state_bounds(self)
 
+    def yield_force(self) -> Scalar:
+        # Near rest the dashpots share alpha z0 and c1 >> c0 passes nearly all of it.
+        return self.alpha * spencer_state_bounds(self)[0]
+
     def constraints(self):
         return spencer_constraints(self) + [
             (

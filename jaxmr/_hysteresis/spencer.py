@@ -3,6 +3,7 @@
 from typing import ClassVar
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 
 from .._current_law import AbstractCurrentLaw, as_parameter
@@ -63,6 +64,10 @@ class Spencer(AbstractHysteresis):
     def state_bounds(self):
         return spencer_state_bounds(self)
 
+    def yield_force(self) -> Scalar:
+        # Near rest the dashpots share alpha z0 and c1 >> c0 passes nearly all of it.
+        return self.alpha * spencer_state_bounds(self)[0]
+
     def constraints(self):
         return spencer_constraints(self)
 
@@ -74,8 +79,27 @@ def _y_rate(model, z, y, x, v):
     return (model.alpha * z + c0 * v + model.k0 * (x - y)) / (c0 + c1)
 
 
+# The rates see z clipped to this many z0. On a solution |z| <= z0 (simulate flags more
+# than 1.01 z0), but an explicit adaptive solver's overlong trial step (at a stiff z:
+# gamma |u| ~ 1e4 1/s) can drive its stages far beyond, where gamma |u| z |z|^(n-1)
+# grows faster than z (|u| = |v - y_rate| grows with alpha |z|) and overflows to inf.
+# The step is rejected, yet reverse mode still differentiates it: its zero cotangent
+# meets the inf partials, 0 * inf = nan, in every gradient. At the clipped z the
+# rejected step stays finite (and rejected), and nothing changes where |z| <= 1e3 z0.
+_Z_CLIP = 1e3
+
+
+def _clip_z(model, z):
+    """z clipped to +-_Z_CLIP z0 (not clipped where z0 is no bound: beta + gamma <= 0,
+    which the constraints refuse). The bound carries no gradient: it is a guard, not
+    part of the model."""
+    z0 = jax.lax.stop_gradient(spencer_state_bounds(model)[0])
+    z_max = jnp.where(jnp.isfinite(z0) & (z0 > 0), _Z_CLIP * z0, jnp.inf)
+    return jnp.clip(z, -z_max, z_max)
+
+
 def spencer_rates(model, state: State, x: Scalar, v: Scalar) -> State:
-    z, y = state[0], state[1]
+    z, y = _clip_z(model, state[0]), state[1]
     y_rate = _y_rate(model, z, y, x, v)
     z_rate = bouc_wen_rate(z, v - y_rate, model.A, model.beta, model.gamma, model.n)
     return jnp.stack([z_rate, y_rate])

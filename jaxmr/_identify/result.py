@@ -87,6 +87,53 @@ class FitResult:
             rows.append(f"{name:<24} {value:>14.6g} {se:>12.3g} {rel:>8.2%}")
         return "\n".join(rows)
 
+    def sample(self, n: int, key: jax.Array) -> eqx.Module:
+        """`n` models drawn from the fit's uncertainty: the parameters jointly normal
+        with the estimated covariance (log-normal, to first order the same, for those
+        with a positive value, so that a positive parameter stays positive); every
+        array of the returned model gains a leading axis of size `n` (a batch to
+        `vmap` over, e.g. for `jaxmr.tune(..., samples=...)`).
+
+        **Arguments:** `n`, the number of samples; `key`, a JAX random key.
+        """
+        if not isinstance(n, int) or n < 1:
+            raise ValueError(
+                f"FitResult.sample: `n` must be a positive integer, got {n!r}."
+            )
+        values = np.asarray(self.values, dtype=float)
+        std = np.nan_to_num(np.asarray(self.std_errors, dtype=float))
+        corr = np.nan_to_num(np.asarray(self.correlation, dtype=float))
+        np.fill_diagonal(corr, 1.0)
+        if not np.all(np.isfinite(values)):
+            raise ValueError("FitResult.sample: the fitted values are not finite.")
+        log = values > 0
+        # In log variables, d log v = dv / v: the covariance scales by 1/v.
+        scale = np.where(log, 1.0 / np.where(log, values, 1.0), 1.0)
+        cov = corr * np.outer(std * scale, std * scale)
+        w, V = np.linalg.eigh((cov + cov.T) / 2)
+        root = V * np.sqrt(np.maximum(w, 0.0))
+        normal = np.asarray(jax.random.normal(key, (n, values.size)))
+        centre = np.where(log, np.log(np.where(log, values, 1.0)), values)
+        t = centre + normal @ root.T
+        draws = np.where(log, np.exp(t), t)
+        # The free parameters are the model's leaves where `_free_mask` is True, in
+        # order; every other leaf is repeated.
+        leaves, treedef = jax.tree.flatten(self.model)
+        mask = jax.tree.leaves(_free_mask(self.constrained))
+        if len(mask) != len(leaves):  # pragma: no cover - a structural invariant
+            raise RuntimeError("FitResult.sample: the model and its mask disagree.")
+        out, k = [], 0
+        for leaf, free in zip(leaves, mask, strict=True):
+            leaf = jnp.asarray(leaf)
+            if free:
+                size = leaf.size
+                block = draws[:, k : k + size].reshape((n,) + leaf.shape)
+                out.append(jnp.asarray(block, dtype=leaf.dtype))
+                k += size
+            else:
+                out.append(jnp.broadcast_to(leaf, (n,) + leaf.shape))
+        return jax.tree.unflatten(treedef, out)
+
     def __str__(self):
         lines = [
             f"fit: {self.reason} after {self.num_steps} steps, loss {self.loss:.6g}",

@@ -1,0 +1,114 @@
+"""Input checks and helpers shared by every tuner."""
+
+import time
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .._control.base import AbstractController
+from .._systems.base import AbstractSystem
+from .loss import Setup, losses, mean_or_inf
+from .result import TuneResult
+from .space import to_values
+
+
+def _batch_size(tree, what: str, example: str) -> int:
+    sizes = {x.shape[0] for x in jax.tree.leaves(tree) if eqx.is_array(x) and x.ndim}
+    if len(sizes) != 1:
+        raise ValueError(
+            f"`{what}` must be a batch with one leading axis (e.g. {example}), got "
+            f"leading sizes {sorted(sizes) or 'none'}."
+        )
+    return sizes.pop()
+
+
+def check_inputs(system, controller, roads, samples) -> int:
+    """The number of runs one evaluation of the loss simulates."""
+    if not isinstance(system, AbstractSystem):
+        raise TypeError(
+            f"`system` must be a jaxmr system, got {type(system).__name__}."
+        )
+    if not isinstance(controller, AbstractController):
+        raise TypeError(
+            f"`controller` must be a jaxmr controller, got {type(controller).__name__}."
+        )
+    runs = _batch_size(
+        roads,
+        "roads",
+        "`jax.vmap(lambda k: jaxmr.iso8608_road('C', 20.0, 10.0, k))(keys)`",
+    )
+    if samples is not None:
+        if not isinstance(samples, AbstractSystem):
+            raise TypeError(
+                "`samples` must be a batch of systems (one leading axis), e.g. from "
+                f"`jaxmr.sample_systems`, got {type(samples).__name__}."
+            )
+        runs *= _batch_size(samples, "samples", "`jaxmr.sample_systems(...)`")
+    return runs
+
+
+def set_temperature(controller, temperature):
+    if temperature is None or not hasattr(controller, "temperature"):
+        return controller
+    value = jnp.asarray(temperature, dtype=jnp.result_type(controller.temperature))
+    return eqx.tree_at(lambda c: c.temperature, controller, value)
+
+
+def held_out_loss(u, pair, samples, validation, setup: Setup) -> float | None:
+    """The hard pair's mean objective on the validation roads."""
+    if validation is None:
+        return None
+    return float(mean_or_inf(losses(u, pair, samples, validation, setup)))
+
+
+def printer(progress, who: str):
+    if callable(progress):
+        return progress
+    if not progress:
+        return lambda step, loss: None
+
+    def report(step, loss):
+        print(f"  {who} {step:4d}: best loss {loss:.6g}", flush=True)
+
+    return report
+
+
+def finite_min(values) -> tuple[int, float]:
+    values = np.asarray(values, dtype=float)
+    values = np.where(np.isfinite(values), values, np.inf)
+    k = int(np.argmin(values))
+    return k, float(values[k])
+
+
+def tune_result(
+    setup: Setup,
+    pair,
+    best_u,
+    *,
+    loss,
+    initial,
+    history,
+    samples,
+    validation,
+    simulations: int,
+    start: float,
+    reason: str,
+) -> TuneResult:
+    """A `TuneResult` for the best variables found (the hard pair)."""
+    seconds = time.perf_counter() - start
+    values = to_values(best_u, setup.space)
+    tuned_system, tuned = eqx.tree_at(setup.where, pair, values)
+    return TuneResult(
+        system=tuned_system,
+        controller=tuned,
+        values=values,
+        loss=float(loss),
+        initial_loss=float(initial),
+        held_out_loss=held_out_loss(best_u, pair, samples, validation, setup),
+        history=tuple(history),
+        simulations=simulations,
+        seconds=seconds,
+        reason=reason,
+    )

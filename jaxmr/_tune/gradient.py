@@ -1,0 +1,196 @@
+"""`tune`: gradient descent through the closed loop, with annealed relaxations."""
+
+import time
+from collections.abc import Callable, Sequence
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .._closed_loop import SystemSolution
+from .._control.base import AbstractController
+from .._systems.base import AbstractSystem
+from .common import check_inputs, printer, set_temperature, tune_result
+from .loss import Setup, comfort, loss_and_grad, losses, mean_or_inf
+from .result import TuneResult
+from .space import as_space, as_tuple_where, from_values, initial_values
+
+
+def _schedule(temperature, controller, steps: int) -> np.ndarray | None:
+    """The relaxation temperature at each step, or None for the hard law only."""
+    if not hasattr(controller, "temperature"):
+        if temperature not in (None, 0, 0.0):
+            raise ValueError(
+                f"tune: {type(controller).__name__} has no `temperature` to relax."
+            )
+        return None
+    if temperature is None:
+        temperature = float(np.max(np.asarray(controller.temperature)))
+    if isinstance(temperature, (tuple, list)):
+        if len(temperature) != 2 or not 0 < temperature[1] <= temperature[0]:
+            raise ValueError(
+                "tune: an annealed `temperature` is (start, end) with "
+                f"start >= end > 0, got {temperature}."
+            )
+        start, end = (float(t) for t in temperature)
+        return start * (end / start) ** (np.arange(steps) / max(steps - 1, 1))
+    temperature = float(temperature)
+    if temperature < 0:
+        raise ValueError(f"tune: `temperature` must be >= 0, got {temperature}.")
+    return None if temperature == 0 else np.full(steps, temperature)
+
+
+def tune(
+    system: AbstractSystem,
+    controller: AbstractController,
+    roads,
+    duration: float,
+    *,
+    parameters: Callable,
+    objective: Callable[[SystemSolution], jax.Array] = comfort,
+    temperature: float | tuple[float, float] | None = None,
+    steps: int = 40,
+    learning_rate: float = 0.1,
+    patience: int = 10,
+    check_every: int = 5,
+    validation=None,
+    samples: AbstractSystem | None = None,
+    dt: float = 1e-3,
+    substeps: int = 4,
+    delay: int = 1,
+    log_space: bool = True,
+    bounds: Sequence[tuple[float, float]] | None = None,
+    progress: bool | Callable = True,
+) -> TuneResult:
+    r"""Tune controller parameters (and passive ones) by gradient descent through the
+    closed-loop simulation, averaged over a batch of roads.
+
+    Minimises $\frac1B \sum_b J(\text{simulate\_system}(\ldots, \text{road}_b))$ over
+    the parameters `parameters` selects, with Adam and exact reverse-mode gradients
+    through the whole loop (the roads run together under `vmap`, each differentiated
+    on its own so that a diverged road drops out of the gradient instead of turning
+    it into NaN).
+
+    A semi-active law switches and clips, so its hard loss is flat or rippled in its
+    gains: gradients are taken of its smooth relaxation (`temperature` > 0, see
+    `jaxmr.with_temperature`), best annealed from soft to nearly hard, e.g.
+    `temperature=(0.3, 0.01)` (geometric over the steps; each relaxation's force
+    scale is the damper's own yield force, so one temperature fits every device).
+    What is kept is always judged on the hard law: its training loss is evaluated
+    every `check_every` steps and at the end, and the best of these is returned. A
+    law without relaxation (a constant current, a schedule) is judged at every step.
+    Stops after `steps`, or `patience` steps without improvement, or on Ctrl-C.
+
+    **Arguments:**
+
+    - `system`, `controller`: the starting pair.
+    - `roads`: a batch of excitation signals (one leading axis), the training set.
+    - `duration`: simulated time per road [s].
+    - `parameters`: `lambda pair: (pair[1].c_sky, ...)` selecting the tuned leaves of
+      `(system, controller)` (the `eqx.tree_at` convention), or a list of arrays
+      (e.g. every weight of a `NeuralFeedback`).
+    - `objective`: per-run loss from a `SystemSolution` (default `comfort`:
+      Wk-weighted RMS body acceleration [m/s²]); add penalties for constraints here.
+    - `temperature`: the relaxation while tuning (dimensionless): a number, a
+      `(start, end)` pair to anneal, or `None` for the controller's own.
+    - `steps`, `learning_rate` (Adam: 0.1 is about 10 % per step in log space),
+      `patience` (in steps), `check_every` (steps between hard-law checks).
+    - `validation`: held-out roads; the returned pair's mean objective on them is
+      `TuneResult.held_out_loss`.
+    - `samples`: a batch of systems (one leading axis: damper parameters drawn from a
+      fit's covariance, `jaxmr.sample_systems`) to tune over instead of `system`
+      alone: the loss is the mean over every sample and road (robust tuning). The
+      tuned parameters are set in every sample.
+    - `dt`, `substeps`, `delay`: as `simulate_system`.
+    - `log_space`: optimise logarithms (default: positive parameters, relative
+      steps); `False` optimises the values (signed weights, `CurrentSchedule.logits`).
+    - `bounds`: optional `(low, high)` per parameter (positive): the parameter is
+      then mapped from an unbounded variable through a sigmoid in log space.
+    - `progress`: a line per step (True), nothing (False), or `progress(step, loss)`.
+
+    **Returns:** a `TuneResult`.
+    """
+    runs = check_inputs(system, controller, roads, samples)
+    if not isinstance(steps, int) or steps < 1:
+        raise ValueError(f"tune: `steps` must be a positive integer, got {steps!r}.")
+    if not isinstance(check_every, int) or check_every < 1:
+        raise ValueError(
+            f"tune: `check_every` must be a positive integer, got {check_every!r}."
+        )
+    where = as_tuple_where(parameters)
+    space = as_space(log_space, bounds, "tune")
+    setup = Setup(space, where, objective, duration, dt, substeps, delay)
+    temperatures = _schedule(temperature, controller, steps)
+    relaxed = temperatures is not None
+    hard = (system, controller)
+    u = from_values(initial_values(hard, where, log_space, "tune"), space, "tune")
+    report = printer(progress, "tune step")
+
+    best_u, best_loss, best_step = u, np.inf, 0
+    initial, history, simulations = None, [], 0
+    checked_u = None
+
+    def judge(u, value, step):
+        nonlocal best_u, best_loss, best_step, initial
+        value = float(value)
+        initial = value if initial is None else initial
+        if np.isfinite(value) and value < best_loss:
+            best_u, best_loss, best_step = u, value, step
+
+    def check(u, step):
+        nonlocal simulations, checked_u
+        judge(u, mean_or_inf(losses(u, hard, samples, roads, setup)), step)
+        simulations += runs
+        checked_u = u
+
+    m = tuple(jnp.zeros_like(v) for v in u)
+    s = tuple(jnp.zeros_like(v) for v in u)
+    beta1, beta2, eps = 0.9, 0.999, 1e-12
+    start = time.perf_counter()
+    reason = f"reached steps = {steps}"
+    try:
+        for k in range(steps):
+            if relaxed and k % check_every == 0:
+                check(u, k)
+            pair = (
+                (system, set_temperature(controller, temperatures[k]))
+                if relaxed
+                else hard
+            )
+            value, grads, _ = loss_and_grad(u, pair, samples, roads, setup)
+            simulations += runs
+            if not relaxed:
+                judge(u, value, k)
+            history.append(best_loss)
+            report(k + 1, best_loss)
+            if k - best_step >= patience:
+                reason = f"stalled: no improvement in {patience} steps"
+                break
+            m = tuple(beta1 * a + (1 - beta1) * g for a, g in zip(m, grads))
+            s = tuple(beta2 * a + (1 - beta2) * g**2 for a, g in zip(s, grads))
+            t = k + 1
+            u = tuple(
+                v
+                - learning_rate
+                * (a / (1 - beta1**t))
+                / (jnp.sqrt(b / (1 - beta2**t)) + eps)
+                for v, a, b in zip(u, m, s)
+            )
+        if relaxed and checked_u is not u and not reason.startswith("stalled"):
+            check(u, steps)
+            history[-1] = best_loss
+    except KeyboardInterrupt:
+        reason = f"interrupted at step {len(history) + 1}; the best parameters are kept"
+    return tune_result(
+        setup,
+        hard,
+        best_u,
+        loss=best_loss,
+        initial=initial if initial is not None else np.nan,
+        history=history,
+        samples=samples,
+        validation=validation,
+        simulations=simulations,
+        start=start,
+        reason=reason,
+    )

@@ -1,0 +1,284 @@
+"""Derivative-free baselines for `tune`: random search and CMA-ES, on the same loss."""
+
+import dataclasses
+import functools
+import time
+from collections.abc import Callable, Sequence
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax.flatten_util import ravel_pytree
+
+from .._closed_loop import SystemSolution
+from .._control.base import AbstractController
+from .._systems.base import AbstractSystem
+from .common import check_inputs, finite_min, printer, tune_result
+from .loss import Setup, comfort, population_losses
+from .result import TuneResult
+from .space import as_space, as_tuple_where, from_values, initial_values
+
+
+def _prepare(
+    who,
+    system,
+    controller,
+    roads,
+    samples,
+    parameters,
+    log_space,
+    bounds,
+    objective,
+    duration,
+    dt,
+    substeps,
+    delay,
+    simulations,
+):
+    runs = check_inputs(system, controller, roads, samples)
+    if not isinstance(simulations, int) or simulations < runs:
+        raise ValueError(
+            f"{who}: `simulations` must be an integer >= the runs of one evaluation "
+            f"({runs}), got {simulations!r}."
+        )
+    where = as_tuple_where(parameters)
+    space = as_space(log_space, bounds, who)
+    setup = Setup(space, where, objective, duration, dt, substeps, delay)
+    pair = (system, controller)
+    u0 = from_values(initial_values(pair, where, log_space, who), space, who)
+    return runs, where, space, setup, pair, u0
+
+
+def random_search(
+    system: AbstractSystem,
+    controller: AbstractController,
+    roads,
+    duration: float,
+    *,
+    parameters: Callable,
+    simulations: int,
+    objective: Callable[[SystemSolution], jax.Array] = comfort,
+    spread: float = 10.0,
+    population: int = 8,
+    log_space: bool = True,
+    bounds: Sequence[tuple[float, float]] | None = None,
+    validation=None,
+    samples: AbstractSystem | None = None,
+    key: jax.Array | None = None,
+    dt: float = 1e-3,
+    substeps: int = 4,
+    delay: int = 1,
+    progress: bool | Callable = False,
+) -> TuneResult:
+    """The simplest derivative-free baseline for `tune`: random parameter sets around
+    the start (the start included), scored with the hard law on the same training
+    roads, until `simulations` road simulations are spent; keeps the best.
+
+    Candidates are uniform within a factor `spread` of the start in log space
+    (clipped to `bounds` when given), or within ± `spread` of it with
+    `log_space=False`; `population` of them are simulated together under `vmap`.
+
+    **Arguments:** as `tune`, plus `simulations` (the budget: give `tune`'s
+    `TuneResult.simulations` for an equal-budget comparison), `spread`, `population`,
+    `key`.
+    """
+    who = "random_search"
+    as_space(log_space, bounds, who)  # checks the bounds
+    # Candidates are drawn and clipped in log values (or values): no sigmoid here.
+    runs, where, space, setup, pair, u0 = _prepare(
+        who,
+        system,
+        controller,
+        roads,
+        samples,
+        parameters,
+        log_space,
+        None,
+        objective,
+        duration,
+        dt,
+        substeps,
+        delay,
+        simulations,
+    )
+    trials = simulations // runs
+    flat0, unravel = ravel_pytree(u0)
+    width = np.log(spread) if log_space else spread
+    key = jax.random.key(0) if key is None else key
+    draws = flat0 + width * jax.random.uniform(
+        key, (trials, flat0.size), flat0.dtype, -1.0, 1.0
+    )
+    draws = draws.at[0].set(flat0)
+    if bounds is not None:
+        lo, _ = ravel_pytree(
+            tuple(
+                jnp.full_like(u, np.log(b[0])) for u, b in zip(u0, bounds, strict=True)
+            )
+        )
+        hi, _ = ravel_pytree(
+            tuple(
+                jnp.full_like(u, np.log(b[1])) for u, b in zip(u0, bounds, strict=True)
+            )
+        )
+        draws = jnp.clip(draws, lo, hi)
+    report = printer(progress, "random search candidate")
+    start = time.perf_counter()
+    history, scores = [], []
+    reason = f"budget of {trials * runs} simulations spent"
+    try:
+        for j in range(0, trials, population):
+            chunk = draws[j : j + population]
+            us = jax.vmap(unravel)(chunk)
+            scores.extend(
+                np.asarray(population_losses(us, pair, samples, roads, setup))
+            )
+            best = finite_min(scores)[1]
+            history.extend([best] * len(chunk))
+            report(len(scores), best)
+    except KeyboardInterrupt:
+        if not scores:
+            raise
+        reason = f"interrupted after {len(scores)} candidates; the best is kept"
+    k, best = finite_min(scores)
+    return tune_result(
+        setup,
+        pair,
+        unravel(draws[k]),
+        loss=best,
+        initial=float(scores[0]),
+        history=history,
+        samples=samples,
+        validation=validation,
+        simulations=len(scores) * runs,
+        start=start,
+        reason=reason,
+    )
+
+
+def cma_es(
+    system: AbstractSystem,
+    controller: AbstractController,
+    roads,
+    duration: float,
+    *,
+    parameters: Callable,
+    simulations: int,
+    objective: Callable[[SystemSolution], jax.Array] = comfort,
+    sigma: float = 0.5,
+    population: int | None = None,
+    target: float | None = None,
+    log_space: bool = True,
+    bounds: Sequence[tuple[float, float]] | None = None,
+    validation=None,
+    samples: AbstractSystem | None = None,
+    key: jax.Array | None = None,
+    dt: float = 1e-3,
+    substeps: int = 4,
+    delay: int = 1,
+    progress: bool | Callable = False,
+) -> TuneResult:
+    """CMA-ES (Hansen's covariance matrix adaptation evolution strategy, as
+    implemented by `evosax`), the strong derivative-free baseline for `tune`: each
+    generation's candidates are scored with the hard law on the same training roads,
+    simulated together under `vmap`, until `simulations` road simulations are spent
+    or the best loss reaches `target`.
+
+    Works in `tune`'s variables: log values (or values with `log_space=False`, or the
+    sigmoid variables of `bounds`), started at the given parameters with step size
+    `sigma` in those variables (0.5 in log space: a factor 1.6).
+
+    **Arguments:** as `tune`, plus `simulations` (the budget), `sigma`, `population`
+    (default: CMA-ES's own 4 + 3 ln(dimension)), `target` (stop once the best training
+    loss is at or below it: how many simulations a given loss costs), `key`.
+
+    Needs the optional dependency `evosax` (`pip install "jaxmr[search]"`).
+    """
+    try:
+        from evosax.algorithms import CMA_ES
+    except ImportError as error:  # pragma: no cover - depends on the environment
+        raise ImportError(
+            'cma_es needs evosax: pip install "jaxmr[search]" (or evosax).'
+        ) from error
+    who = "cma_es"
+    runs, where, space, setup, pair, u0 = _prepare(
+        who,
+        system,
+        controller,
+        roads,
+        samples,
+        parameters,
+        log_space,
+        bounds,
+        objective,
+        duration,
+        dt,
+        substeps,
+        delay,
+        simulations,
+    )
+    flat0, unravel = ravel_pytree(u0)
+    size = population or 4 + int(3 * np.log(flat0.size))
+    if size * runs > simulations:
+        raise ValueError(
+            f"cma_es: one generation of {size} candidates on {runs} runs needs "
+            f"{size * runs} simulations, more than the budget of {simulations}."
+        )
+    # evosax relies on numpy-style dtype promotion (float times bool): give it that
+    # whatever the user's `jax_numpy_dtype_promotion` setting.
+    standard = functools.partial(jax.numpy_dtype_promotion, "standard")
+    with standard():
+        strategy = CMA_ES(population_size=size, solution=flat0)
+        params = dataclasses.replace(
+            strategy.default_params, std_init=jnp.asarray(sigma, flat0.dtype)
+        )
+        key = jax.random.key(0) if key is None else key
+        key, init_key = jax.random.split(key)
+        state = strategy.init(init_key, flat0, params)
+    report = printer(progress, "cma_es generation")
+    start = time.perf_counter()
+    initial = float(
+        population_losses(jax.vmap(unravel)(flat0[None]), pair, samples, roads, setup)[
+            0
+        ]
+    )
+    spent = runs
+    best_flat, best, history = flat0, initial, [initial]
+    reason = f"budget of {simulations} simulations spent"
+    try:
+        while spent + size * runs <= simulations:
+            if target is not None and best <= target:
+                reason = f"reached the target loss {target:.6g}"
+                break
+            key, ask_key, tell_key = jax.random.split(key, 3)
+            with standard():
+                candidates, state = strategy.ask(ask_key, state, params)
+            scores = population_losses(
+                jax.vmap(unravel)(candidates), pair, samples, roads, setup
+            )
+            spent += size * runs
+            k, value = finite_min(scores)
+            if value < best:
+                best_flat, best = candidates[k], value
+            # evosax ranks the scores: a failed candidate is simply the worst.
+            ranked = jnp.where(
+                jnp.isfinite(scores), scores, jnp.finfo(scores.dtype).max
+            )
+            with standard():
+                state, _ = strategy.tell(tell_key, candidates, ranked, state, params)
+            history.append(best)
+            report(len(history) - 1, best)
+    except KeyboardInterrupt:
+        reason = f"interrupted after {len(history) - 1} generations; the best is kept"
+    return tune_result(
+        setup,
+        pair,
+        unravel(best_flat),
+        loss=best,
+        initial=initial,
+        history=history,
+        samples=samples,
+        validation=validation,
+        simulations=spent,
+        start=start,
+        reason=reason,
+    )
