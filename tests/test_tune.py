@@ -252,6 +252,23 @@ def test_bad_tuning_input():
         )
 
 
+@pytest.mark.parametrize(
+    "settings, message",
+    [
+        (dict(learning_rate=(0.1, 0.2)), "annealed `learning_rate`"),
+        (dict(temperature=(0.01, 0.1)), "annealed `temperature`"),
+        (dict(learning_rate=-0.1), "`learning_rate` must be > 0"),
+        (dict(check_every=0), "`check_every` must be a positive integer"),
+    ],
+)
+def test_bad_schedules_are_named(settings, message):
+    # Refused before anything is simulated (no compilation).
+    with pytest.raises(ValueError, match=message):
+        jaxmr.tune(
+            CAR, FAR, TRAIN, T, parameters=c_sky, steps=2, progress=False, **settings
+        )
+
+
 def test_tuning_over_damper_samples_averages_over_them():
     # Two cars whose damper's yield law is scaled by 0.6 and 1.5: the loss of a tune
     # over them is the mean over both samples and both roads, each computed again

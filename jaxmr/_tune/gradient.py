@@ -16,6 +16,19 @@ from .result import TuneResult
 from .space import as_space, as_tuple_where, from_values, initial_values
 
 
+def _geometric(value, steps: int, name: str) -> np.ndarray:
+    """A number at every step, or a `(start, end)` pair decayed geometrically."""
+    if isinstance(value, (tuple, list)):
+        if len(value) != 2 or not 0 < value[1] <= value[0]:
+            raise ValueError(
+                f"tune: an annealed `{name}` is (start, end) with start >= end > 0, "
+                f"got {value}."
+            )
+        start, end = (float(v) for v in value)
+        return start * (end / start) ** (np.arange(steps) / max(steps - 1, 1))
+    return np.full(steps, float(value))
+
+
 def _schedule(temperature, controller, steps: int) -> np.ndarray | None:
     """The relaxation temperature at each step, or None for the hard law only."""
     if not hasattr(controller, "temperature"):
@@ -27,13 +40,7 @@ def _schedule(temperature, controller, steps: int) -> np.ndarray | None:
     if temperature is None:
         temperature = float(np.max(np.asarray(controller.temperature)))
     if isinstance(temperature, (tuple, list)):
-        if len(temperature) != 2 or not 0 < temperature[1] <= temperature[0]:
-            raise ValueError(
-                "tune: an annealed `temperature` is (start, end) with "
-                f"start >= end > 0, got {temperature}."
-            )
-        start, end = (float(t) for t in temperature)
-        return start * (end / start) ** (np.arange(steps) / max(steps - 1, 1))
+        return _geometric(temperature, steps, "temperature")
     temperature = float(temperature)
     if temperature < 0:
         raise ValueError(f"tune: `temperature` must be >= 0, got {temperature}.")
@@ -50,7 +57,7 @@ def tune(
     objective: Callable[[SystemSolution], jax.Array] = comfort,
     temperature: float | tuple[float, float] | None = None,
     steps: int = 40,
-    learning_rate: float = 0.1,
+    learning_rate: float | tuple[float, float] = 0.1,
     patience: int = 10,
     check_every: int = 5,
     validation=None,
@@ -93,7 +100,9 @@ def tune(
       Wk-weighted RMS body acceleration [m/s²]); add penalties for constraints here.
     - `temperature`: the relaxation while tuning (dimensionless): a number, a
       `(start, end)` pair to anneal, or `None` for the controller's own.
-    - `steps`, `learning_rate` (Adam: 0.1 is about 10 % per step in log space),
+    - `steps`, `learning_rate` (Adam: 0.1 is about 10 % per step in log space; a
+      `(start, end)` pair decays it geometrically over the steps: long strides while
+      far from an optimum, fine ones near it),
       `patience` (in steps), `check_every` (steps between hard-law checks).
     - `validation`: held-out roads; the returned pair's mean objective on them is
       `TuneResult.held_out_loss`.
@@ -121,6 +130,9 @@ def tune(
     space = as_space(log_space, bounds, "tune")
     setup = Setup(space, where, objective, duration, dt, substeps, delay)
     temperatures = _schedule(temperature, controller, steps)
+    rates = _geometric(learning_rate, steps, "learning_rate")
+    if not np.all(rates > 0):
+        raise ValueError(f"tune: `learning_rate` must be > 0, got {learning_rate}.")
     relaxed = temperatures is not None
     hard = (system, controller)
     u = from_values(initial_values(hard, where, log_space, "tune"), space, "tune")
@@ -171,7 +183,7 @@ def tune(
             t = k + 1
             u = tuple(
                 v
-                - learning_rate
+                - rates[k]
                 * (a / (1 - beta1**t))
                 / (jnp.sqrt(b / (1 - beta2**t)) + eps)
                 for v, a, b in zip(u, m, s)
