@@ -7,6 +7,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax.extend.core import Literal as JaxprLiteral
 from jax.sharding import Mesh, PartitionSpec
 
 from ._current_law import ranged_laws
@@ -15,7 +16,7 @@ from ._damper import Damper, as_damper
 from ._hysteresis import AbstractHysteresis
 from ._integrate import AbstractIntegrator, Adaptive, FixedStep
 from ._misc import as_float_array, is_concrete, warn_if_float32
-from ._signal import AbstractSignal, as_signal
+from ._signal import AbstractSignal, Constant, as_signal
 from ._solution import RESULTS, Solution
 
 
@@ -168,28 +169,42 @@ def _run(
     in_tables = jnp.array(True)
     if checks:
         ts, in_tables = _runtime_checks(damper, motion, current, ts, throw)
+    x, v, ys, result, num_steps = _solve(
+        damper, motion, current, ts, integrator, initial_state
+    )
+    return _finish(damper, current, ts, x, v, ys, result, num_steps, in_tables)
+
+
+def _solve(damper, motion, current, ts, integrator, initial_state):
+    """The motion at `ts` and the states integrated under it: `(x, v, ys, result,
+    num_steps)`."""
     x = jax.vmap(motion)(ts)
     v = jax.vmap(motion.derivative)(ts)
-    i = jax.vmap(current)(ts)
     if initial_state is None:
-        y0 = damper.initial_state(x[0], v[0], i[0])
+        y0 = damper.initial_state(x[0], v[0], current(ts[0]))
     else:
         y0 = as_float_array(initial_state)
     if y0.shape[0] == 0:  # a static model (Bingham): nothing to integrate
         ys = jnp.zeros((ts.shape[0], 0), dtype=ts.dtype)
-        result, num_steps = RESULTS.successful, jnp.array(0)
-    else:
-        jumps = [
-            jnp.ravel(j).astype(ts.dtype)
-            for j in (motion.jump_times(), current.jump_times())
-            if j is not None
-        ]
-        # Passed only when there are jumps: an integrator written for the
-        # four-argument `integrate` keeps working with smooth signals.
-        extra = {"jump_ts": jnp.concatenate(jumps)} if jumps else {}
-        ys, result, num_steps = integrator.integrate(
-            _field, y0, ts, (damper, motion, current), **extra
-        )
+        return x, v, ys, RESULTS.successful, jnp.array(0)
+    jumps = [
+        jnp.ravel(j).astype(ts.dtype)
+        for j in (motion.jump_times(), current.jump_times())
+        if j is not None
+    ]
+    # Passed only when there are jumps: an integrator written for the
+    # four-argument `integrate` keeps working with smooth signals.
+    extra = {"jump_ts": jnp.concatenate(jumps)} if jumps else {}
+    ys, result, num_steps = integrator.integrate(
+        _field, y0, ts, (damper, motion, current), **extra
+    )
+    return x, v, ys, result, num_steps
+
+
+def _finish(damper, current, ts, x, v, ys, result, num_steps, in_tables) -> Solution:
+    """The solution of one run from its solved states: the force, the effective
+    current and the result code at this run's `current`."""
+    i = jax.vmap(current)(ts)
     force = jax.vmap(damper.force)(ys, x, v, i)
     effective = jax.vmap(damper.effective_current)(ys, i)
     force_ok = jnp.all(jnp.isfinite(force))
@@ -221,6 +236,55 @@ def _run(
         num_steps=num_steps,
         state_names=damper.state_names,
     )
+
+
+def _run_shared(damper, motion, currents, ts, integrator, throw: bool = True):
+    """The runs of one damper and motion at every constant current of the batch
+    `currents` (leading axis), for a damper whose state equation does not depend on the
+    current (`_state_ignores_current`): the states are solved once and the force is
+    evaluated at each current. The same solutions as `_run` per current, stacked."""
+    # Every run's input checks, as `_run` does them; the solve uses the times guarded
+    # by the first current's (the motion's checks are in all of them).
+    ts_each, in_tables = jax.vmap(
+        lambda c: _runtime_checks(damper, motion, c, ts, throw)
+    )(currents)
+    first = jax.tree.map(lambda a: a[0], currents)
+    x, v, ys, result, num_steps = _solve(
+        damper, motion, first, ts_each[0], integrator, None
+    )
+    return jax.vmap(
+        lambda c, t, ok: _finish(damper, c, t, x, v, ys, result, num_steps, ok)
+    )(currents, ts_each, in_tables)
+
+
+def _state_ignores_current(damper: Damper, dtype) -> bool:
+    """Whether the damper's state equation (its rates and initial state) is the same at
+    every commanded current, decided from its structure at trace time: no output of the
+    jaxpr of `i -> (rates(s, x, v, i), initial_state(x, v, i))` depends on `i`.
+
+    Conservative: an equation with any input that depends on `i` makes all its outputs
+    depend on it (sub-jaxprs of control flow included). A current law acting only on
+    the force's gains (the SAS brake's alpha and c0) leaves the state alone; a law on
+    `beta`, or current dynamics (`FirstOrderLag`), do not.
+    """
+    arrays, static = eqx.partition(damper, eqx.is_array)
+    scalar = jnp.zeros((), dtype)
+    state = jnp.zeros(len(damper.state_names), dtype)
+
+    def equation(i, arrays, s, x, v):
+        d = eqx.combine(arrays, static)
+        return d.rates(s, x, v, i), d.initial_state(x, v, i)
+
+    jaxpr = jax.make_jaxpr(equation)(scalar, arrays, state, scalar, scalar).jaxpr
+    dependent = {jaxpr.invars[0]}
+
+    def depends(var) -> bool:
+        return not isinstance(var, JaxprLiteral) and var in dependent
+
+    for eqn in jaxpr.eqns:
+        if any(depends(var) for var in eqn.invars):
+            dependent.update(eqn.outvars)
+    return not any(depends(var) for var in jaxpr.outvars)
 
 
 @eqx.filter_jit
@@ -403,24 +467,59 @@ def _auto_batching(integrator) -> str:
 
 @eqx.filter_jit
 def _sweep(
-    damper, motion, current, axes, ts, integrator, batching, batch_size, shape, throw
+    damper,
+    motion,
+    current,
+    axes,
+    ts,
+    integrator,
+    batching,
+    batch_size,
+    shape,
+    throw,
+    shared=False,
 ):
     # The throw and the reshape to the sweep's axes happen inside the same compiled call:
     # done outside, each copied the whole solution (~15 % of a large sweep's time).
     sol = _sweep_flat(
-        damper, motion, current, axes, ts, integrator, batching, batch_size, throw
+        damper,
+        motion,
+        current,
+        axes,
+        ts,
+        integrator,
+        batching,
+        batch_size,
+        throw,
+        shared,
     )
     if throw:
         sol = sol.result.error_if(sol, jnp.any(sol.result != RESULTS.successful))
-    return jax.tree.map(lambda a: a.reshape(shape + a.shape[1:]), sol)
+    # Shared: each (device, motion) pair carries all the currents, on a second axis.
+    lead = 2 if shared else 1
+    return jax.tree.map(lambda a: a.reshape(shape + a.shape[lead:]), sol)
 
 
 def _sweep_flat(
-    damper, motion, current, axes, ts, integrator, batching, batch_size, throw=True
+    damper,
+    motion,
+    current,
+    axes,
+    ts,
+    integrator,
+    batching,
+    batch_size,
+    throw=True,
+    shared=False,
 ):
+    """The flat batch of runs. With `shared` the batch is of (device, motion) pairs and
+    `current` (unbatched, axis None) holds every current: `_run_shared`."""
+
     def one(d, m, c):
         # throw=False: a current outside a table is this run's result code, not an
         # error that stops every run.
+        if shared:
+            return _run_shared(d, m, c, ts, integrator, throw=throw)
         return _run(d, m, c, ts, integrator, None, throw=throw)
 
     def local(d, m, c):
@@ -506,6 +605,13 @@ def sweep(
     `XLA_FLAGS=--xla_force_host_platform_device_count=N`) the batch is split across them
     with `jax.shard_map` when its size divides evenly.
 
+    Over constant currents (a 1-D array, or a list of numbers or `Constant`s) with a
+    model whose state equation does not depend on the current (the current laws act
+    only on the force, as in `sas_brake_bouc_wen()`; no current dynamics), the states
+    are solved once per (device, motion) and the force is evaluated at every current:
+    decided at trace time from the model's structure, with the same `Solution` as one
+    solve per run.
+
     **Arguments:** as `simulate`, plus
 
     - `grid`: outer product (True) or zip (False) of the sequences.
@@ -569,11 +675,38 @@ def sweep(
         index = {k: np.arange(shape[0]) for k in batched}
     if throw:
         _check_sweep_tables(*devices, *currents, grid)
+    shared = _shares_states(devices[0][0], currents, batched, grid, ts.dtype)
+    if shared:
+        # Solve each (device, motion) pair once; every current rides along whole. With
+        # neither batched, one pair: a batch of one keeps the batching machinery.
+        pairs = shape[:-1]  # the current is the last axis of a grid, or the only one
+        if pairs:
+            grids = np.indices(pairs).reshape(len(pairs), -1)
+            index = {k: grids[j] for j, k in enumerate(batched[:-1])}
+        else:
+            batches[1] = _stack([batches[1][0]], "motion")
+            index = {1: np.zeros(1, dtype=int)}
     args, axes = [], []
     for k, (module, size) in enumerate(batches):
-        module, axis = _index(module, size, index.get(k))
+        if shared and k == 2:  # the whole batch of currents goes to every pair
+            module, axis = module, None
+        else:
+            module, axis = _index(module, size, index.get(k))
         args.append(module)
         axes.append(axis)
     return _sweep(
-        *args, tuple(axes), ts, integrator, batching, batch_size, shape, throw
+        *args, tuple(axes), ts, integrator, batching, batch_size, shape, throw, shared
     )
+
+
+def _shares_states(damper, currents, batched, grid, dtype) -> bool:
+    """Whether a sweep solves the states once per (device, motion) and evaluates the
+    force at every current: the currents are a batch of constants (no jumps), each
+    (device, motion) pair meets every current (a grid, or currents alone) and the
+    damper's state equation does not depend on the current."""
+    items, current_batched = currents
+    if not current_batched or not (grid or batched == [2]):
+        return False
+    if not all(type(c) is Constant for c in items):
+        return False
+    return _state_ignores_current(damper, dtype)

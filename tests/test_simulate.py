@@ -178,12 +178,30 @@ def test_sweep_shards_over_several_devices():
         m = jaxmr.Sine(jnp.deg2rad(3.5), 1.0)
         currents = jnp.array([0.0, 0.25, 0.5, 1.0])
         fixed = jaxmr.FixedStep(4)
-        sol = jaxmr.sweep(jaxmr.sas_brake_bouc_wen(), m, currents, ts, integrator=fixed)
+        # A lagged current: the state depends on it, one run per current (full path).
+        lagged = jaxmr.Damper(jaxmr.sas_brake_bouc_wen(), jaxmr.FirstOrderLag(50.0))
+        sol = jaxmr.sweep(lagged, m, currents, ts, integrator=fixed)
         shards = {d for d in sol.force.sharding.device_set}
         assert len(shards) == 2, shards
         for k, c in enumerate(currents):
-            one = jaxmr.simulate(jaxmr.sas_brake_bouc_wen(), m, c, ts, integrator=fixed)
+            one = jaxmr.simulate(lagged, m, c, ts, integrator=fixed)
             np.testing.assert_allclose(sol.force[k], one.force, rtol=1e-10, atol=1e-13)
+        # The SAS brake shares its states over the currents: the (device, motion)
+        # pairs are sharded.
+        motions = [m, jaxmr.Sine(jnp.deg2rad(2.0), 2.0)]
+        sol = jaxmr.sweep(
+            jaxmr.sas_brake_bouc_wen(), motions, currents, ts, integrator=fixed
+        )
+        shards = {d for d in sol.force.sharding.device_set}
+        assert len(shards) == 2, shards
+        for j, motion in enumerate(motions):
+            for k, c in enumerate(currents):
+                one = jaxmr.simulate(
+                    jaxmr.sas_brake_bouc_wen(), motion, c, ts, integrator=fixed
+                )
+                np.testing.assert_allclose(
+                    sol.force[j, k], one.force, rtol=1e-10, atol=1e-13
+                )
         print("sharded ok")
         """
     )
