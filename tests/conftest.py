@@ -1,11 +1,44 @@
 """Tests run in float64 with strict dtype promotion: identification and the tolerances
 stated in the tests need double precision, and strict promotion catches silent
-float32/int mixing in the models."""
+float32/int mixing in the models.
 
-import jax
+The session shares one persistent compilation cache between its processes: the two
+`pytest -n 2` workers and the notebooks' kernels. Most of the suite's time is XLA
+compilation, and a program compiled in one process (a module fixture that both workers
+build, a notebook's fit that a test repeats) is then loaded by the others instead of
+compiled again. The directory is made for the session (inherited by the workers and
+kernels through the environment) and removed at its end, so nothing carries over
+between runs; a `JAX_COMPILATION_CACHE_DIR` set by the user is used as it is."""
+
+import os
+import shutil
+import tempfile
+
+_OWN_CACHE = "JAX_COMPILATION_CACHE_DIR" not in os.environ
+if _OWN_CACHE:
+    os.environ["JAX_COMPILATION_CACHE_DIR"] = tempfile.mkdtemp(
+        prefix="jaxmr-tests-xla-"
+    )
+    # Programs that take half a second to compile are worth a file (default: 1 s).
+    os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0.5")
+
+import jax  # noqa: E402 - after the environment above, which jax reads on import
 
 jax.config.update("jax_enable_x64", True)
 jax.config.update("jax_numpy_dtype_promotion", "strict")
+# Where jax was imported before this file (by a plugin), the environment came too late.
+jax.config.update("jax_compilation_cache_dir", os.environ["JAX_COMPILATION_CACHE_DIR"])
+jax.config.update(
+    "jax_persistent_cache_min_compile_time_secs",
+    float(os.environ.get("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "1.0")),
+)
+
+
+def pytest_unconfigure(config):
+    # The process that made the cache (the xdist controller, or the only process)
+    # removes it; the workers, which inherited it, leave it.
+    if _OWN_CACHE and not hasattr(config, "workerinput"):
+        shutil.rmtree(os.environ["JAX_COMPILATION_CACHE_DIR"], ignore_errors=True)
 
 
 # Longest first: the notebooks take minutes each, so under `pytest -n 2` they start at

@@ -131,7 +131,9 @@ def test_small_fit_on_the_training_record(window):
     start = eqx.tree_at(
         lambda s: (s.damper.hysteresis.beta, s.damper.hysteresis.gamma),
         start,
-        (jnp.asarray(-550.0), jnp.asarray(1600.0)),
+        # float64, not weakly typed (`jnp.asarray(-550.0)`): the statistics, taken at
+        # the float64 optimum, then reuse the column scaling's compiled Jacobian.
+        (jnp.array(-550.0, float), jnp.array(1600.0, float)),
     )
     start = jaxmr.fit_only(
         start, lambda s: (s.damper.hysteresis.beta, s.damper.hysteresis.gamma)
