@@ -96,6 +96,17 @@ def test_random_search_spends_the_budget_and_returns_its_best():
     assert search.loss < 0.85 * search.initial_loss, (search.loss, search.initial_loss)
 
 
+def test_random_search_scores_an_uneven_last_chunk_without_counting_its_padding():
+    # Five candidates in chunks of two: the last chunk is padded (one compilation for
+    # every chunk), and only the five count.
+    search = jaxmr.random_search(
+        CAR, FAR, TRAIN, T, parameters=c_sky, simulations=10, population=2
+    )
+    assert search.simulations == 10 and len(search.history) == 5
+    assert search.loss == pytest.approx(mean_comfort(search.controller), rel=1e-10)
+    assert list(search.history) == sorted(search.history, reverse=True)
+
+
 def _setup(where, space=True):
     from jaxmr._tune.loss import Setup
     from jaxmr._tune.space import as_tuple_where

@@ -11,7 +11,7 @@ from .._control.base import AbstractController
 from .._systems.base import AbstractSystem
 from .loss import Setup, losses, mean_or_inf
 from .result import TuneResult
-from .space import to_values
+from .space import as_space, as_tuple_where, from_values, initial_values, to_values
 
 
 def _batch_size(tree, what: str, example: str) -> int:
@@ -47,6 +47,32 @@ def check_inputs(system, controller, roads, samples) -> int:
             )
         runs *= _batch_size(samples, "samples", "`jaxmr.sample_systems(...)`")
     return runs
+
+
+def prepare(
+    who: str,
+    system,
+    controller,
+    roads,
+    samples,
+    parameters,
+    log_space: bool,
+    bounds,
+    objective,
+    duration,
+    dt,
+    substeps,
+    delay,
+):
+    """Every tuner's start: the checked inputs, the runs one evaluation simulates, the
+    static `Setup` of the loss, the pair and the optimiser's starting variables."""
+    runs = check_inputs(system, controller, roads, samples)
+    where = as_tuple_where(parameters)
+    space = as_space(log_space, bounds, who)
+    setup = Setup(space, where, objective, duration, dt, substeps, delay)
+    pair = (system, controller)
+    u0 = from_values(initial_values(pair, where, log_space, who), space, who)
+    return runs, setup, pair, u0
 
 
 def set_temperature(controller, temperature):

@@ -10,10 +10,9 @@ import numpy as np
 from .._closed_loop import SystemSolution
 from .._control.base import AbstractController
 from .._systems.base import AbstractSystem
-from .common import check_inputs, printer, set_temperature, tune_result
-from .loss import Setup, comfort, loss_and_grad, losses, mean_or_inf
+from .common import prepare, printer, set_temperature, tune_result
+from .loss import comfort, loss_and_grad, losses, mean_or_inf
 from .result import TuneResult
-from .space import as_space, as_tuple_where, from_values, initial_values
 
 
 def _geometric(value, steps: int, name: str) -> np.ndarray:
@@ -119,23 +118,32 @@ def tune(
 
     **Returns:** a `TuneResult`.
     """
-    runs = check_inputs(system, controller, roads, samples)
     if not isinstance(steps, int) or steps < 1:
         raise ValueError(f"tune: `steps` must be a positive integer, got {steps!r}.")
     if not isinstance(check_every, int) or check_every < 1:
         raise ValueError(
             f"tune: `check_every` must be a positive integer, got {check_every!r}."
         )
-    where = as_tuple_where(parameters)
-    space = as_space(log_space, bounds, "tune")
-    setup = Setup(space, where, objective, duration, dt, substeps, delay)
     temperatures = _schedule(temperature, controller, steps)
     rates = _geometric(learning_rate, steps, "learning_rate")
     if not np.all(rates > 0):
         raise ValueError(f"tune: `learning_rate` must be > 0, got {learning_rate}.")
     relaxed = temperatures is not None
-    hard = (system, controller)
-    u = from_values(initial_values(hard, where, log_space, "tune"), space, "tune")
+    runs, setup, hard, u = prepare(
+        "tune",
+        system,
+        controller,
+        roads,
+        samples,
+        parameters,
+        log_space,
+        bounds,
+        objective,
+        duration,
+        dt,
+        substeps,
+        delay,
+    )
     report = printer(progress, "tune step")
 
     best_u, best_loss, best_step = u, np.inf, 0

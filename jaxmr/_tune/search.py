@@ -13,40 +13,20 @@ from jax.flatten_util import ravel_pytree
 from .._closed_loop import SystemSolution
 from .._control.base import AbstractController
 from .._systems.base import AbstractSystem
-from .common import check_inputs, finite_min, printer, tune_result
-from .loss import Setup, comfort, population_losses
+from .common import finite_min, prepare, printer, tune_result
+from .loss import comfort, population_losses
 from .result import TuneResult
-from .space import as_space, as_tuple_where, from_values, initial_values
+from .space import as_space
 
 
-def _prepare(
-    who,
-    system,
-    controller,
-    roads,
-    samples,
-    parameters,
-    log_space,
-    bounds,
-    objective,
-    duration,
-    dt,
-    substeps,
-    delay,
-    simulations,
-):
-    runs = check_inputs(system, controller, roads, samples)
+def _prepare(who, simulations, *args):
+    runs, setup, pair, u0 = prepare(who, *args)
     if not isinstance(simulations, int) or simulations < runs:
         raise ValueError(
             f"{who}: `simulations` must be an integer >= the runs of one evaluation "
             f"({runs}), got {simulations!r}."
         )
-    where = as_tuple_where(parameters)
-    space = as_space(log_space, bounds, who)
-    setup = Setup(space, where, objective, duration, dt, substeps, delay)
-    pair = (system, controller)
-    u0 = from_values(initial_values(pair, where, log_space, who), space, who)
-    return runs, where, space, setup, pair, u0
+    return runs, setup, pair, u0
 
 
 def random_search(
@@ -85,8 +65,9 @@ def random_search(
     who = "random_search"
     as_space(log_space, bounds, who)  # checks the bounds
     # Candidates are drawn and clipped in log values (or values): no sigmoid here.
-    runs, where, space, setup, pair, u0 = _prepare(
+    runs, setup, pair, u0 = _prepare(
         who,
+        simulations,
         system,
         controller,
         roads,
@@ -99,7 +80,6 @@ def random_search(
         dt,
         substeps,
         delay,
-        simulations,
     )
     trials = simulations // runs
     flat0, unravel = ravel_pytree(u0)
@@ -125,15 +105,19 @@ def random_search(
     start = time.perf_counter()
     history, scores = [], []
     reason = f"budget of {trials * runs} simulations spent"
+    # Every chunk has one size (the last padded with the start, scored but not
+    # counted), so the population's loss compiles once.
+    size = min(population, trials)
+    padded = jnp.concatenate(
+        [draws, jnp.broadcast_to(flat0, ((-trials) % size, flat0.size))]
+    )
     try:
-        for j in range(0, trials, population):
-            chunk = draws[j : j + population]
-            us = jax.vmap(unravel)(chunk)
-            scores.extend(
-                np.asarray(population_losses(us, pair, samples, roads, setup))
-            )
+        for j in range(0, trials, size):
+            us = jax.vmap(unravel)(padded[j : j + size])
+            chunk = np.asarray(population_losses(us, pair, samples, roads, setup))
+            scores.extend(chunk[: trials - j])
             best = finite_min(scores)[1]
-            history.extend([best] * len(chunk))
+            history.extend([best] * len(chunk[: trials - j]))
             report(len(scores), best)
     except KeyboardInterrupt:
         if not scores:
@@ -200,8 +184,9 @@ def cma_es(
             'cma_es needs evosax: pip install "jaxmr[search]" (or evosax).'
         ) from error
     who = "cma_es"
-    runs, where, space, setup, pair, u0 = _prepare(
+    runs, setup, pair, u0 = _prepare(
         who,
+        simulations,
         system,
         controller,
         roads,
@@ -214,7 +199,6 @@ def cma_es(
         dt,
         substeps,
         delay,
-        simulations,
     )
     flat0, unravel = ravel_pytree(u0)
     size = population or 4 + int(3 * np.log(flat0.size))
