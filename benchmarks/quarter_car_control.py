@@ -345,10 +345,10 @@ def main():
         validation=held,
     )
     record("rich law by CMA-ES (comfort)", cma)
-    dimension = sum(w.size for w in weights((car, start)))
-    size = 4 + int(3 * np.log(dimension))
+    # Simulations per generation, from what CMA-ES spent (its start: one evaluation).
+    per_generation = (cma.simulations - runs) // max(len(cma.history) - 1, 1)
     cma_needed = first_reaching(
-        cma.history, rich.loss, lambda k: runs + k * size * runs
+        cma.history, rich.loss, lambda k: runs + k * per_generation
     )
     search = jaxmr.random_search(
         car,
@@ -375,7 +375,7 @@ def main():
         "budget": budget,
         "cmaes_simulations_to_reach": cma_needed,
         "cmaes_train_loss_at_equal_simulations": at_budget(
-            cma.history, lambda k: runs + k * size * runs
+            cma.history, lambda k: runs + k * per_generation
         ),
         "cmaes_best_train_loss": cma.loss,
         "cmaes_held_out_loss": cma.held_out_loss,

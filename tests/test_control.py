@@ -405,7 +405,7 @@ FEATURE_SCALES = (0.1, 1.0, 0.3)
 
 
 def _with_weights(law, weights):
-    return eqx.tree_at(lambda c: c.network.weights, law, jnp.asarray(weights))
+    return eqx.tree_at(lambda c: c.network.weight, law, jnp.asarray([weights]))
 
 
 def test_force_feedback_spans_skyhook_and_starts_at_the_lowest_force():
@@ -436,7 +436,7 @@ def test_force_feedback_mlp_starts_at_zero_with_a_gradient():
         FEATURE_SCALES, I_MAX, features=FEATURES, width=4, depth=1, temperature=0.2
     )
     weights = jaxmr.ForceFeedback.weights((None, law))
-    assert [w.shape for w in weights] == [(3,), (4, 3), (4,), (1, 4), (1,)]
+    assert [w.shape for w in weights] == [(1, 3), (4, 3), (4,), (1, 4), (1,)]
     m = measurement(body_velocity=0.2, body_acceleration=-1.0, damper_velocity=0.1)
     assert float(law.desired_force(m, 1000.0)) == 0.0
 

@@ -27,17 +27,18 @@ def _as_scales(scales: Any) -> Array:
     return as_float_array(np.asarray(scales, dtype=float))
 
 
-class _Linear(eqx.Module):
-    weights: Float[Array, " features"]
-
-    def __call__(self, phi):
-        return jnp.dot(self.weights, phi)
+def _zero_linear(features: int, dtype) -> eqx.nn.Linear:
+    # An `equinox.nn.Linear` to a scalar, without bias, every gain 0.
+    linear = eqx.nn.Linear(
+        features, "scalar", use_bias=False, dtype=dtype, key=jax.random.key(0)
+    )
+    return eqx.tree_at(lambda m: m.weight, linear, jnp.zeros_like(linear.weight))
 
 
 class _LinearAndMLP(eqx.Module):
     # A linear law plus a nonlinear correction: never worse than the linear law it
     # contains, and tuned from zero the gradient moves the linear part first.
-    linear: _Linear
+    linear: eqx.nn.Linear
     mlp: eqx.nn.MLP
 
     def __call__(self, phi):
@@ -100,9 +101,8 @@ class ForceFeedback(AbstractController):
         temperature=0.0,
     ) -> "ForceFeedback":
         """$g(\\varphi) = w \\cdot \\varphi$, every gain $w_k$ zero."""
-        zeros = jnp.zeros(len(features), dtype=jnp.result_type(float))
         return cls(
-            _Linear(zeros),
+            _zero_linear(len(features), jnp.result_type(float)),
             scales,
             as_float_array(i_max),
             as_float_array(temperature),
@@ -141,7 +141,7 @@ class ForceFeedback(AbstractController):
             net,
             (jnp.zeros_like(last.weight), jnp.zeros_like(last.bias)),
         )
-        net = _LinearAndMLP(_Linear(jnp.zeros(len(features), dtype=dtype)), net)
+        net = _LinearAndMLP(_zero_linear(len(features), dtype), net)
         return cls(
             net,
             scales,
@@ -156,10 +156,10 @@ class ForceFeedback(AbstractController):
         on a `(system, ForceFeedback)` pair (selected by structure, as `eqx.tree_at`
         requires)."""
         network = pair[1].network
-        if isinstance(network, _Linear):
-            return [network.weights]
+        if isinstance(network, eqx.nn.Linear) and not network.use_bias:
+            return [network.weight]
         if isinstance(network, _LinearAndMLP):
-            return [network.linear.weights] + [
+            return [network.linear.weight] + [
                 w for layer in network.mlp.layers for w in (layer.weight, layer.bias)
             ]
         raise TypeError(
