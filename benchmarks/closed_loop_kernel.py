@@ -55,6 +55,7 @@ import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
 import jaxmr  # noqa: E402
+from jaxmr._tune.batch import road_batch  # noqa: E402
 from jaxmr._tune.evaluate import _evaluate  # noqa: E402
 from jaxmr._tune.loss import Setup, loss_and_grad  # noqa: E402
 from jaxmr._tune.space import as_tuple_where  # noqa: E402
@@ -360,7 +361,8 @@ def closed_loop_speed(duration=8.0, roads=12, repeats=3, specialised=True) -> di
     steps = (DT, SUBSTEPS, DELAY)
     add("jaxmr_forward", _evaluate, car, law, batch, duration, metrics, *steps)
     setup = Setup(True, as_tuple_where(_c_sky), jaxmr.comfort, duration, *steps)
-    add("jaxmr_gradient", loss_and_grad, (log_c,), (car, law), None, batch, setup)
+    roads = road_batch(batch)
+    add("jaxmr_gradient", loss_and_grad, (log_c,), (car, law), None, roads, setup)
     kinds = ("kernel", "specialised_kernel") if specialised else ("kernel",)
     for kind in kinds:
         forward, gradient, parameters = _kernels(

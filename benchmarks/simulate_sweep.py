@@ -89,6 +89,16 @@ def parse_args():
         help="reference solve for every run (default: every motion at the lowest and "
         "highest current)",
     )
+    p.add_argument(
+        "--processes",
+        type=int,
+        default=1,
+        help="N > 1: only the process comparison: the fixed-step grid in N local "
+        "processes (jax.distributed, one CPU device each) against 1",
+    )
+    p.add_argument("--worker", type=int, help=argparse.SUPPRESS)
+    p.add_argument("--port", help=argparse.SUPPRESS)
+    p.add_argument("--out", help=argparse.SUPPRESS)
     args = p.parse_args()
     if args.runs is None:
         args.runs = 64 if args.quick else 1024
@@ -106,6 +116,13 @@ if ARGS.host_devices > 1:  # must happen before jax is imported
         + f" --xla_force_host_platform_device_count={ARGS.host_devices}"
     )
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # this checkout's jaxmr
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _processes import initialize, launch  # noqa: E402
+
+if ARGS.worker is not None:  # before anything touches a JAX backend
+    initialize(ARGS.processes, ARGS.worker, ARGS.port)
+
 import jax  # noqa: E402
 
 jax.config.update("jax_enable_x64", True)
@@ -116,7 +133,6 @@ import scipy  # noqa: E402
 from jax.sharding import Mesh, NamedSharding, PartitionSpec  # noqa: E402
 from scipy.integrate import solve_ivp  # noqa: E402
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # this checkout's jaxmr
 import jaxmr  # noqa: E402
 
 # ---------------------------------------------------------------------------------------
@@ -323,8 +339,101 @@ def scipy_torque(a, f, i, ts, method, rtol):
 # ---------------------------------------------------------------------------------------
 
 
+def grid(runs: int, duration: float):
+    """The sweep's motions and currents: amplitudes x frequencies x currents."""
+    e = int(math.log2(runs))
+    n_amp = n_freq = 2 ** (e // 3)
+    n_cur = runs // (n_amp * n_freq)
+    amps_deg = np.linspace(1.0, 5.0, n_amp)
+    freqs = np.linspace(0.5, 2.0, n_freq)
+    currents = np.linspace(0.0, 1.0, n_cur)
+    motion_params = [(np.deg2rad(a), f) for a in amps_deg for f in freqs]
+    return motion_params, currents, n_amp, n_freq, n_cur
+
+
+def process_worker(args):
+    """One process of the process comparison: the fixed-step grid, compiled then
+    timed (median of `repeats`), every process getting the whole solution."""
+    duration = 2.0 if args.quick else 10.0
+    ts = jnp.linspace(0.0, duration, int(round(duration * 1000)) + 1)
+    motion_params, currents, *_ = grid(args.runs, duration)
+    motions = [jaxmr.Sine(a, f) for a, f in motion_params]
+    integrator = jaxmr.FixedStep(substeps=args.substeps or 3)
+
+    def call():
+        sol = jaxmr.sweep(
+            jaxmr.sas_brake_bouc_wen(), motions, jnp.asarray(currents), ts,
+            integrator=integrator,
+        )  # fmt: skip
+        return jax.block_until_ready(sol.force)
+
+    t0 = time.perf_counter()
+    call()
+    first = time.perf_counter() - t0
+    runs = []
+    for _ in range(args.repeats):
+        t0 = time.perf_counter()
+        force = call()
+        runs.append(time.perf_counter() - t0)
+    if jax.process_index() == 0:
+        np.savez(
+            args.out,
+            first_s=first,
+            run_s=statistics.median(runs),
+            force=np.asarray(force),
+            devices=len(jax.devices()),
+        )
+
+
+def process_comparison(args):
+    """`--processes N`: the same sweep in 1 and in N processes, fresh each."""
+    import tempfile
+
+    script = str(Path(__file__).resolve())
+    passed = ["--json", args.json, "--runs", str(args.runs), "--repeats",
+              str(args.repeats)] + (["--quick"] if args.quick else []) + (
+        ["--substeps", str(args.substeps)] if args.substeps else [])  # fmt: skip
+    with tempfile.TemporaryDirectory() as folder:
+        # One process with the same cores as devices (the sweep split over them).
+        one = launch(script, 1, passed, Path(folder) / "one.npz", os.cpu_count() or 1)
+        many = launch(script, args.processes, passed, Path(folder) / "many.npz")
+    duration = 2.0 if args.quick else 10.0
+    n = args.processes
+    figures = {
+        "runs": args.runs,
+        "duration_s": duration,
+        "substeps": args.substeps or 3,
+        "machine": device_description(),
+        "load_average": os.getloadavg(),
+        "one_process": {
+            "first_call_s": float(one["first_s"]),
+            "run_s": float(one["run_s"]),
+        },  # fmt: skip
+        f"{n}_processes": {
+            "first_call_s": float(many["first_s"]),
+            "run_s": float(many["run_s"]),
+        },  # fmt: skip
+        f"simulated_s_per_wall_s_{n}_processes": args.runs
+        * duration
+        / float(many["run_s"]),
+        "simulated_s_per_wall_s_one_process": args.runs
+        * duration
+        / float(one["run_s"]),
+        "processes_over_one_run": float(many["run_s"] / one["run_s"]),
+        "equal_results": bool(np.array_equal(one["force"], many["force"])),
+    }
+    text = json.dumps(figures, indent=2)
+    print(text)
+    Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+    Path(args.json).write_text(text)
+
+
 def main():
     args = ARGS
+    if args.worker is not None:
+        return process_worker(args)
+    if args.processes > 1:
+        return process_comparison(args)
     check_preset_numbers()
     load_start = os.getloadavg()
     t_start = time.perf_counter()
@@ -335,13 +444,7 @@ def main():
     n_times = int(round(duration * 1000)) + 1
     ts = jnp.linspace(0.0, duration, n_times)
     ts_np = np.asarray(ts)
-    e = int(math.log2(args.runs))
-    n_amp = n_freq = 2 ** (e // 3)
-    n_cur = args.runs // (n_amp * n_freq)
-    amps_deg = np.linspace(1.0, 5.0, n_amp)
-    freqs = np.linspace(0.5, 2.0, n_freq)
-    currents = np.linspace(0.0, 1.0, n_cur)
-    motion_params = [(np.deg2rad(a), f) for a in amps_deg for f in freqs]
+    motion_params, currents, n_amp, n_freq, n_cur = grid(args.runs, duration)
     motions = [jaxmr.Sine(a, f) for a, f in motion_params]
     n_mot = len(motions)
     sim_seconds = args.runs * duration
@@ -591,8 +694,10 @@ def main():
         "quick": args.quick,
         "grid": {
             "currents_A": currents.tolist(),
-            "amplitudes_deg": amps_deg.tolist(),
-            "frequencies_Hz": freqs.tolist(),
+            "amplitudes_deg": sorted(
+                {round(float(np.rad2deg(a)), 12) for a, _ in motion_params}
+            ),
+            "frequencies_Hz": sorted({float(f) for _, f in motion_params}),
             "order": "motion-major (amplitude, frequency), current inner",
             "duration_s": duration,
             "output_rate_Hz": 1000,

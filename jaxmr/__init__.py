@@ -1,183 +1,252 @@
-"""jaxmr: differentiable physics of magnetorheological dampers and brakes in JAX."""
+"""jaxmr: differentiable physics of magnetorheological dampers and brakes in JAX.
 
-from ._current_dynamics import (
-    AbstractCurrentDynamics as AbstractCurrentDynamics,
-    FirstOrderLag as FirstOrderLag,
-)
-from ._current_law import (
-    AbstractCurrentLaw as AbstractCurrentLaw,
-    ConstantLaw as ConstantLaw,
-    ExponentialLaw as ExponentialLaw,
-    LinearLaw as LinearLaw,
-    PolynomialLaw as PolynomialLaw,
-    TableLaw as TableLaw,
-)
-from ._damper import Damper as Damper
-from ._hysteresis import (
-    AbstractHysteresis as AbstractHysteresis,
-    Bingham as Bingham,
-    BoucWen as BoucWen,
-    BoucWenBaberNoori as BoucWenBaberNoori,
-    Dahl as Dahl,
-    LuGre as LuGre,
-    NormalizedBoucWen as NormalizedBoucWen,
-    ShearThinningSpencer as ShearThinningSpencer,
-    Spencer as Spencer,
-)
-from ._integrate import (
-    AbstractIntegrator as AbstractIntegrator,
-    Adaptive as Adaptive,
-    FixedStep as FixedStep,
-    Stiff as Stiff,
-)
-from ._signal import (
-    AbstractSignal as AbstractSignal,
-    Chirp as Chirp,
-    Constant as Constant,
-    Multisine as Multisine,
-    Sampled as Sampled,
-    Sine as Sine,
-    Steps as Steps,
-    Triangle as Triangle,
-)
-from ._simulate import simulate as simulate, sweep as sweep
-from ._solution import RESULTS as RESULTS, Solution as Solution
+The public names below are imported when one of them is first used (PEP 562), not by
+`import jaxmr`: importing JAX, diffrax and equinox takes seconds, and `jaxmr --help`,
+`import jaxmr.data` for a file or a script that only reads `jaxmr.__version__` should
+not pay for it. The first use of any public name imports them all, as an eager
+`__init__` would. The imports under `TYPE_CHECKING` are the one list of the public API:
+pyright and the documentation's griffe read them as written, and `__getattr__` reads
+them from this file's syntax tree.
+"""
+
+import ast
+import importlib
+from typing import TYPE_CHECKING
 
 __version__ = "0.1.0"
-from ._analysis import energy_per_cycle as energy_per_cycle
-from ._closed_loop import (
-    SystemSolution as SystemSolution,
-    dissipated_work as dissipated_work,
-    simulate_system as simulate_system,
-)
-from ._control import (
-    AbstractController as AbstractController,
-    AccelerationDrivenDamper as AccelerationDrivenDamper,
-    Backstepping as Backstepping,
-    ClippedOptimal as ClippedOptimal,
-    ConstantCurrent as ConstantCurrent,
-    ContinuousClippedOptimal as ContinuousClippedOptimal,
-    CurrentSchedule as CurrentSchedule,
-    DamperPlant as DamperPlant,
-    ForceFeedback as ForceFeedback,
-    Groundhook as Groundhook,
-    Hybrid as Hybrid,
-    LyapunovController as LyapunovController,
-    OnOffGroundhook as OnOffGroundhook,
-    OnOffSkyhook as OnOffSkyhook,
-    PowerDrivenDamper as PowerDrivenDamper,
-    Skyhook as Skyhook,
-    feature_scales as feature_scales,
-    lqr as lqr,
-    quarter_car_state_space as quarter_car_state_space,
-    solve_lyapunov as solve_lyapunov,
-    solve_riccati as solve_riccati,
-    with_temperature as with_temperature,
-)
-from ._identify import (
-    MODEL_TEMPLATES as MODEL_TEMPLATES,
-    DataScales as DataScales,
-    FastLevenbergMarquardt as FastLevenbergMarquardt,
-    FitResult as FitResult,
-    ModelScore as ModelScore,
-    Selection as Selection,
-    StepPolicy as StepPolicy,
-    SystemRecord as SystemRecord,
-    compare_models as compare_models,
-    data_scales as data_scales,
-    fit as fit,
-    fit_each as fit_each,
-    fit_system as fit_system,
-    holdout_split as holdout_split,
-    moving_average as moving_average,
-    nrmse as nrmse,
-    predict as predict,
-    predict_all as predict_all,
-    record_nrmse as record_nrmse,
-    score_table as score_table,
-    select_model as select_model,
-)
-from ._magnetic import (
-    AISI_12L14_MAJOR_LOOP as AISI_12L14_MAJOR_LOOP,
-    BinghamDisc as BinghamDisc,
-    HodgdonMaterial as HodgdonMaterial,
-    MagneticStage as MagneticStage,
-    aisi_12l14 as aisi_12l14,
-    mr_brake_actuator as mr_brake_actuator,
-    mrb_107_3 as mrb_107_3,
-)
-from ._metrics import (
-    crest_factor as crest_factor,
-    dissipated_energy as dissipated_energy,
-    mean_current as mean_current,
-    peak as peak,
-    rms as rms,
-    rms_current as rms_current,
-    settling_time as settling_time,
-    vdv as vdv,
-    wk_response as wk_response,
-    wk_rms as wk_rms,
-    wk_state_space as wk_state_space,
-    wk_weighted as wk_weighted,
-)
-from ._parameter import (
-    AbstractParameter as AbstractParameter,
-    Bounded as Bounded,
-    Fixed as Fixed,
-    Positive as Positive,
-    fit_only as fit_only,
-)
-from ._presets import (
-    PRESETS as PRESETS,
-    UTFSM_SPENCER_PUBLISHED as UTFSM_SPENCER_PUBLISHED,
-    passenger_car_mr_damper as passenger_car_mr_damper,
-    review_quarter_car_damper as review_quarter_car_damper,
-    sas_brake_bingham as sas_brake_bingham,
-    sas_brake_bouc_wen as sas_brake_bouc_wen,
-    sas_brake_dahl as sas_brake_dahl,
-    spencer_1997 as spencer_1997,
-    utfsm_spencer as utfsm_spencer,
-)
-from ._ramp import Ramp as Ramp
-from ._road import (
-    Cam as Cam,
-    HaversineBump as HaversineBump,
-    Pothole as Pothole,
-    RandomRoad as RandomRoad,
-    SmoothStep as SmoothStep,
-    iso8608_psd as iso8608_psd,
-    iso8608_road as iso8608_road,
-    road_psd as road_psd,
-)
-from ._serialize import (
-    load_model as load_model,
-    model_from_dict as model_from_dict,
-    model_to_dict as model_to_dict,
-    save_model as save_model,
-)
-from ._systems import (
-    MEASUREMENT_NAMES as MEASUREMENT_NAMES,
-    AbstractSystem as AbstractSystem,
-    QuarterCar as QuarterCar,
-    SASRig as SASRig,
-    SingleDegreeOfFreedom as SingleDegreeOfFreedom,
-    decay_settling_time as decay_settling_time,
-    free_decay as free_decay,
-    inverse_dynamics as inverse_dynamics,
-    passenger_car as passenger_car,
-    sas_rig as sas_rig,
-    sas_rig_brake as sas_rig_brake,
-    spencer_quarter_car as spencer_quarter_car,
-)
-from ._systems.oscillator import (
-    band_limited_input as band_limited_input,
-    hysteretic_benchmark_oscillator as hysteretic_benchmark_oscillator,
-)
-from ._tune import (
-    TuneResult as TuneResult,
-    cma_es as cma_es,
-    comfort as comfort,
-    evaluate as evaluate,
-    random_search as random_search,
-    tune as tune,
-)
+
+if TYPE_CHECKING:
+    from ._analysis import energy_per_cycle as energy_per_cycle
+    from ._closed_loop import (
+        SystemSolution as SystemSolution,
+        dissipated_work as dissipated_work,
+        simulate_system as simulate_system,
+    )
+    from ._control import (
+        AbstractController as AbstractController,
+        AccelerationDrivenDamper as AccelerationDrivenDamper,
+        Backstepping as Backstepping,
+        ClippedOptimal as ClippedOptimal,
+        ConstantCurrent as ConstantCurrent,
+        ContinuousClippedOptimal as ContinuousClippedOptimal,
+        CurrentSchedule as CurrentSchedule,
+        DamperPlant as DamperPlant,
+        ForceFeedback as ForceFeedback,
+        Groundhook as Groundhook,
+        Hybrid as Hybrid,
+        LyapunovController as LyapunovController,
+        OnOffGroundhook as OnOffGroundhook,
+        OnOffSkyhook as OnOffSkyhook,
+        PowerDrivenDamper as PowerDrivenDamper,
+        Skyhook as Skyhook,
+        feature_scales as feature_scales,
+        lqr as lqr,
+        quarter_car_state_space as quarter_car_state_space,
+        solve_lyapunov as solve_lyapunov,
+        solve_riccati as solve_riccati,
+        with_temperature as with_temperature,
+    )
+    from ._current_dynamics import (
+        AbstractCurrentDynamics as AbstractCurrentDynamics,
+        FirstOrderLag as FirstOrderLag,
+    )
+    from ._current_law import (
+        AbstractCurrentLaw as AbstractCurrentLaw,
+        ConstantLaw as ConstantLaw,
+        ExponentialLaw as ExponentialLaw,
+        LinearLaw as LinearLaw,
+        PolynomialLaw as PolynomialLaw,
+        TableLaw as TableLaw,
+    )
+    from ._damper import Damper as Damper
+    from ._distribute import gather as gather
+    from ._hysteresis import (
+        AbstractHysteresis as AbstractHysteresis,
+        Bingham as Bingham,
+        BoucWen as BoucWen,
+        BoucWenBaberNoori as BoucWenBaberNoori,
+        Dahl as Dahl,
+        LuGre as LuGre,
+        NormalizedBoucWen as NormalizedBoucWen,
+        ShearThinningSpencer as ShearThinningSpencer,
+        Spencer as Spencer,
+    )
+    from ._identify import (
+        MODEL_TEMPLATES as MODEL_TEMPLATES,
+        DataScales as DataScales,
+        Design as Design,
+        FastLevenbergMarquardt as FastLevenbergMarquardt,
+        FitResult as FitResult,
+        ModelScore as ModelScore,
+        Selection as Selection,
+        StepPolicy as StepPolicy,
+        SystemRecord as SystemRecord,
+        compare_models as compare_models,
+        data_scales as data_scales,
+        design_experiments as design_experiments,
+        fit as fit,
+        fit_each as fit_each,
+        fit_system as fit_system,
+        holdout_split as holdout_split,
+        moving_average as moving_average,
+        nrmse as nrmse,
+        planned_test as planned_test,
+        predict as predict,
+        predict_all as predict_all,
+        record_nrmse as record_nrmse,
+        score_table as score_table,
+        select_model as select_model,
+        sine_grid as sine_grid,
+    )
+    from ._integrate import (
+        AbstractIntegrator as AbstractIntegrator,
+        Adaptive as Adaptive,
+        FixedStep as FixedStep,
+        Stiff as Stiff,
+    )
+    from ._magnetic import (
+        AISI_12L14_MAJOR_LOOP as AISI_12L14_MAJOR_LOOP,
+        BinghamDisc as BinghamDisc,
+        HodgdonMaterial as HodgdonMaterial,
+        MagneticStage as MagneticStage,
+        aisi_12l14 as aisi_12l14,
+        mr_brake_actuator as mr_brake_actuator,
+        mrb_107_3 as mrb_107_3,
+    )
+    from ._metrics import (
+        crest_factor as crest_factor,
+        dissipated_energy as dissipated_energy,
+        mean_current as mean_current,
+        peak as peak,
+        rms as rms,
+        rms_current as rms_current,
+        settling_time as settling_time,
+        vdv as vdv,
+        wk_response as wk_response,
+        wk_rms as wk_rms,
+        wk_state_space as wk_state_space,
+        wk_weighted as wk_weighted,
+    )
+    from ._opensees import (
+        from_opensees as from_opensees,
+        to_opensees as to_opensees,
+    )
+    from ._parameter import (
+        AbstractParameter as AbstractParameter,
+        Bounded as Bounded,
+        Fixed as Fixed,
+        Positive as Positive,
+        fit_only as fit_only,
+    )
+    from ._presets import (
+        PRESETS as PRESETS,
+        UTFSM_SPENCER_PUBLISHED as UTFSM_SPENCER_PUBLISHED,
+        passenger_car_mr_damper as passenger_car_mr_damper,
+        review_quarter_car_damper as review_quarter_car_damper,
+        sas_brake_bingham as sas_brake_bingham,
+        sas_brake_bouc_wen as sas_brake_bouc_wen,
+        sas_brake_dahl as sas_brake_dahl,
+        spencer_1997 as spencer_1997,
+        utfsm_spencer as utfsm_spencer,
+    )
+    from ._ramp import Ramp as Ramp
+    from ._road import (
+        Cam as Cam,
+        HaversineBump as HaversineBump,
+        Pothole as Pothole,
+        RandomRoad as RandomRoad,
+        SmoothStep as SmoothStep,
+        iso8608_psd as iso8608_psd,
+        iso8608_road as iso8608_road,
+        road_psd as road_psd,
+    )
+    from ._serialize import (
+        load_model as load_model,
+        model_from_dict as model_from_dict,
+        model_to_dict as model_to_dict,
+        save_model as save_model,
+    )
+    from ._signal import (
+        AbstractSignal as AbstractSignal,
+        Chirp as Chirp,
+        Constant as Constant,
+        Multisine as Multisine,
+        Sampled as Sampled,
+        Sine as Sine,
+        Steps as Steps,
+        Triangle as Triangle,
+    )
+    from ._simulate import simulate as simulate, sweep as sweep
+    from ._solution import RESULTS as RESULTS, Solution as Solution
+    from ._systems import (
+        MEASUREMENT_NAMES as MEASUREMENT_NAMES,
+        AbstractSystem as AbstractSystem,
+        QuarterCar as QuarterCar,
+        SASRig as SASRig,
+        SingleDegreeOfFreedom as SingleDegreeOfFreedom,
+        decay_settling_time as decay_settling_time,
+        free_decay as free_decay,
+        inverse_dynamics as inverse_dynamics,
+        passenger_car as passenger_car,
+        sas_rig as sas_rig,
+        sas_rig_brake as sas_rig_brake,
+        spencer_quarter_car as spencer_quarter_car,
+    )
+    from ._systems.oscillator import (
+        band_limited_input as band_limited_input,
+        hysteretic_benchmark_oscillator as hysteretic_benchmark_oscillator,
+    )
+    from ._tune import (
+        TuneResult as TuneResult,
+        cma_es as cma_es,
+        comfort as comfort,
+        evaluate as evaluate,
+        random_search as random_search,
+        tune as tune,
+    )
+
+
+# Subpackages with their own vocabulary (files, figures), imported on use as well.
+_SUBPACKAGES = ("data", "plot")
+_exports: dict[str, tuple[str, str]] | None = None
+
+
+def _public() -> dict[str, tuple[str, str]]:
+    """Public name -> (module, name in it), from the imports under `TYPE_CHECKING`."""
+    global _exports
+    if _exports is None:
+        source = __spec__.loader.get_source(__name__)
+        found = {}
+        for node in ast.parse(source).body:
+            if not (
+                isinstance(node, ast.If) and ast.unparse(node.test) == "TYPE_CHECKING"
+            ):
+                continue
+            for statement in node.body:
+                if not isinstance(statement, ast.ImportFrom):
+                    continue  # e.g. `import x` for annotations: not a public name
+                module = "." * statement.level + (statement.module or "")
+                for alias in statement.names:
+                    found[alias.asname or alias.name] = (module, alias.name)
+        _exports = found
+    return _exports
+
+
+def __getattr__(name: str) -> object:
+    if name in _SUBPACKAGES:
+        return importlib.import_module(f".{name}", __name__)
+    if name == "__all__":
+        return sorted(_public())
+    if name not in _public():
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    # Every public name at once: `vars(jaxmr)` (the model registry of `load_model`)
+    # then holds them all, as it did when this file imported them eagerly.
+    for public, (module, attribute) in _public().items():
+        globals()[public] = getattr(
+            importlib.import_module(module, __name__), attribute
+        )
+    return globals()[name]
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_public()) | set(_SUBPACKAGES))

@@ -14,32 +14,52 @@ interrupt never leaves half a file.
 
 import argparse
 import csv
+import hashlib
 import json
 import math
 import os
+import re
 import secrets
 import signal
 import sys
 import tempfile
 import threading
 import time
+import warnings
 from collections.abc import Callable, Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-import jax
 import numpy as np
 
+# Light imports only: `jaxmr --help` and a usage error must not wait seconds for JAX.
+# `jaxmr/__init__.py` imports its public names on first use, `jaxmr.plot` imports
+# matplotlib when it draws, and JAX with jaxmr's models and identification (and
+# `jaxmr.data`, which builds on them) are imported by the commands that use them.
 import jaxmr
-import jaxmr.data
-import jaxmr.plot  # light: it imports matplotlib only when it draws
-from jaxmr._identify.score import nrmse, predict_all, rmse
-from jaxmr._identify.select import score_table, select_model
-from jaxmr._identify.solver import iterate, progress_printer
-from jaxmr._identify.templates import MODEL_TEMPLATES, input_varies_in_time
+import jaxmr.plot
+
+if TYPE_CHECKING:
+    import jaxmr.data  # at run time `jaxmr.data` is imported on first use
 
 # The candidates of `--model auto`: the richest structures first (their screening fits
 # decide), each behind a fitted input lag when the input varies within a file.
 AUTO_CANDIDATES = ("shear_thinning_spencer", "spencer", "bouc_wen")
+# The names of `jaxmr.MODEL_TEMPLATES` and `jaxmr.data.DATASETS`, for the help texts
+# (both modules import JAX; tests/test_cli.py checks that the lists agree).
+TEMPLATE_NAMES = (
+    "bingham",
+    "bouc_wen",
+    "normalized_bouc_wen",
+    "dahl",
+    "lugre",
+    "spencer",
+    "shear_thinning_spencer",
+    "bouc_wen_lag",
+    "spencer_lag",
+    "shear_thinning_spencer_lag",
+)
+DATASET_NAMES = ("utfsm", "nees", "boucwen")
 # The exit status of a command stopped by Ctrl-C (the shell's 128 + SIGINT).
 INTERRUPTED = 130
 
@@ -55,13 +75,19 @@ def main(argv: Sequence[str | os.PathLike] | None = None) -> int:
     130 when interrupted by Ctrl-C (argparse exits with 2 on a usage error). With
     `argv=None` (the `jaxmr` program) Ctrl-C is ignored once the command is done.
     """
-    # jaxmr never changes JAX's configuration on import; the command line is an
-    # application and wants the accuracy of double precision (Adaptive's rtol 1e-8).
-    jax.config.update("jax_enable_x64", True)
     parser = _parser()
     args = parser.parse_args(None if argv is None else [os.fspath(a) for a in argv])
     try:
-        return args.run(args)
+        # Only now, with a command to run: JAX takes seconds to import. jaxmr never
+        # changes JAX's configuration on import; the command line is an application
+        # and wants the accuracy of double precision (Adaptive's rtol 1e-8).
+        if args.command == "fit":
+            _cores_as_devices()
+        import jax
+
+        jax.config.update("jax_enable_x64", True)
+        with _Warnings(args.command) as args.warnings:
+            return args.run(args)
     except CLIError as e:
         print(f"jaxmr {args.command}: error: {e}", file=sys.stderr)
         return 1
@@ -74,6 +100,53 @@ def main(argv: Sequence[str | os.PathLike] | None = None) -> int:
             # The program ends here: a Ctrl-C in JAX's clean-up at exit would only
             # print a traceback.
             signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+def _cores_as_devices() -> None:
+    """Every CPU core an XLA device (up to 8), so that a fit splits its lanes over
+    them: XLA runs one device's scan on one core. Only when JAX is not yet imported
+    (the flag is read then) and the user set no device count of their own; GPUs are
+    unaffected (the flag is the CPU platform's)."""
+    flags = os.environ.get("XLA_FLAGS", "")
+    if "jax" in sys.modules or "xla_force_host_platform_device_count" in flags:
+        return
+    cores = min(os.cpu_count() or 1, 8)
+    if cores > 1:
+        count = f"--xla_force_host_platform_device_count={cores}"
+        os.environ["XLA_FLAGS"] = f"{flags} {count}".strip()
+
+
+class _Warnings(list):
+    """The `UserWarning`s raised while a command runs (a file's implausible units,
+    float32, ...), as a context manager: each distinct message is printed once on
+    stderr, `jaxmr <command>: warning: ...` (the file and line of the code that warned
+    mean nothing to a user of the command line), and kept in this list for the
+    command's report (`jaxmr fit` writes them into the JSON). Other warnings are left
+    to Python's filters."""
+
+    def __init__(self, command: str):
+        super().__init__()
+        self.command = command
+        self._context = warnings.catch_warnings()
+
+    def __enter__(self):
+        self._context.__enter__()  # restores the filters and `showwarning` on exit
+        warnings.simplefilter("always", UserWarning)
+        shown = warnings.showwarning
+
+        def show(message, category, filename, lineno, file=None, line=None):
+            if not issubclass(category, UserWarning):
+                return shown(message, category, filename, lineno, file, line)
+            text = str(message)
+            if text not in self:
+                self.append(text)
+                print(f"jaxmr {self.command}: warning: {text}", file=sys.stderr)
+
+        warnings.showwarning = show
+        return self
+
+    def __exit__(self, *exc_info):
+        return self._context.__exit__(*exc_info)
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -92,6 +165,9 @@ def _parser() -> argparse.ArgumentParser:
     _add_predict(subparsers)
     _add_report(subparsers)
     _add_convert(subparsers)
+    from jaxmr import _design_cli  # `jaxmr design`, in its own module
+
+    _design_cli.add_parser(subparsers)
     return parser
 
 
@@ -216,6 +292,15 @@ DEMO_AMPLITUDE_DEG = 3.5
 DEMO_FREQUENCY = 1.0  # Hz
 DEMO_DURATION = 3.0  # s: two cycles of transient from the virgin state, one kept
 DEMO_RATE = 1000.0  # Hz, output samples
+# Why the loops barely change with current (printed by the demo and in its --help).
+DEMO_GROWTH_NOTE = (
+    "The loops grow by only about 9 % from 0 to 1 A: that is the brake's published "
+    "law (SAS study, Table 1), not a numerical effect. Its hysteretic torque "
+    "alpha(i) z grows with alpha = 1 + 0.07 i N·m, 7 % per ampere, and its viscous "
+    "torque (0.0015 + 0.07 i) N·m·s/rad times at most 0.38 rad/s at ±3.5°, 1 Hz adds "
+    "about 2 % of the energy at 1 A. The energy axis starts at 0 so that the change "
+    "is seen at its true scale."
+)
 
 
 def _add_demo(subparsers) -> None:
@@ -227,7 +312,8 @@ def _add_demo(subparsers) -> None:
             f"parameters) under a {DEMO_FREQUENCY:g} Hz sine of ±{DEMO_AMPLITUDE_DEG:g}° "
             f"at currents {', '.join(f'{c:g}' for c in DEMO_CURRENTS)} A, and write "
             "torque loops (last cycle), energy per cycle against current, and a table "
-            "of peak torque and energy per cycle (summary.csv, summary.md)."
+            "of peak torque and energy per cycle (summary.csv, summary.md). "
+            + DEMO_GROWTH_NOTE
         ),
     )
     demo.add_argument(
@@ -309,8 +395,13 @@ def _demo(args: argparse.Namespace) -> int:
         )
         ax.set_title(title, fontsize="medium")
         _save_figure(plt, ax.figure, out / name, replacing=out / name in replacing)
+    growth = energy[-1] / energy[0] - 1
     ax = jaxmr.plot.energy_vs_current(currents, energy)
-    ax.set_title("SAS MR brake, Bouc-Wen: energy per cycle", fontsize="medium")
+    ax.set_title(
+        f"SAS MR brake, Bouc-Wen: energy per cycle\n{growth:+.0%} from "
+        f"{currents[0]:g} to {currents[-1]:g} A (its published law)",
+        fontsize="medium",
+    )
     path = out / "energy_vs_current.png"
     _save_figure(plt, ax.figure, path, replacing=path in replacing)
 
@@ -329,6 +420,19 @@ def _demo(args: argparse.Namespace) -> int:
     )
     print()
     print(table, end="")
+    # The energy of a linear dashpot over a sine cycle is exactly π c ω X²: the rest is
+    # the hysteretic part (α z).
+    amplitude, omega = np.deg2rad(DEMO_AMPLITUDE_DEG), 2 * np.pi * DEMO_FREQUENCY
+    at = [jaxmr.sas_brake_bouc_wen().at(c) for c in currents]
+    c0 = np.array([float(m.c0) for m in at if isinstance(m, jaxmr.BoucWen)])
+    viscous = np.pi * c0 * omega * amplitude**2
+    print(
+        f"\nenergy per cycle {energy[0]:.4f} J at {currents[0]:g} A, "
+        f"{energy[-1]:.4f} J at {currents[-1]:g} A: {growth:+.1%}, of which the "
+        f"hysteretic torque {(energy[-1] - viscous[-1]) / (energy[0] - viscous[0]) - 1:+.1%}"
+        f" and the viscous torque {(viscous[-1] - viscous[0]) / energy[0]:+.1%} of the "
+        f"energy at {currents[0]:g} A.\n{DEMO_GROWTH_NOTE}"
+    )
     return 0
 
 
@@ -426,6 +530,10 @@ def _json_number(x):
     return x if math.isfinite(x) else None
 
 
+def _json_seconds(x):
+    return None if x is None else round(x, 3)
+
+
 def _units(experiment) -> tuple[str, str]:
     """(force unit, input unit)."""
     force = "N·m" if experiment.rotary else "N"
@@ -435,6 +543,8 @@ def _units(experiment) -> tuple[str, str]:
 def _model_parameters(model) -> list[tuple[str, float]]:
     """(name, value) of every numeric parameter, named by its path as `fit` names
     them (e.g. `.alpha.a`)."""
+    import jax
+
     rows = []
     for path, leaf in jax.tree_util.tree_flatten_with_path(model)[0]:
         name = jax.tree_util.keystr(path)
@@ -451,7 +561,7 @@ def _model_parameters(model) -> list[tuple[str, float]]:
 
 
 def _add_fit(subparsers) -> None:
-    names = ", ".join(MODEL_TEMPLATES)
+    names = ", ".join(TEMPLATE_NAMES)
     command = subparsers.add_parser(
         "fit",
         help="fit a damper model to measured CSV files; write its parameters (JSON)",
@@ -567,15 +677,17 @@ def _processing(option: str, files, key: str, flag: str):
 
 
 def _candidate_names(args, experiments) -> list[str]:
+    from jaxmr._identify.templates import input_varies_in_time
+
     if args.candidates is None:
         lag = input_varies_in_time(experiments)
         return [f"{c}_lag" if lag else c for c in AUTO_CANDIDATES]
     candidates = [c.strip() for c in args.candidates.split(",") if c.strip()]
-    unknown = [c for c in candidates if c not in MODEL_TEMPLATES]
+    unknown = [c for c in candidates if c not in TEMPLATE_NAMES]
     if unknown or not candidates:
         raise CLIError(
             f"--candidates: unknown model(s) {', '.join(map(repr, unknown))}; choose "
-            f"from {', '.join(MODEL_TEMPLATES)}"
+            f"from {', '.join(TEMPLATE_NAMES)}"
             if unknown
             else "--candidates names no model"
         )
@@ -587,15 +699,15 @@ def _where(frame) -> tuple[bool, bool]:
     loop (`iterate`, which stops at a `KeyboardInterrupt` with the best model; found
     by its names, as a wrapper such as jaxtyping's shares its code object)."""
     in_jax = in_loop = False
+    from jaxmr._identify.solver import iterate  # imported by the fit by now
+
+    solver_loop = (iterate.__module__, iterate.__name__)
     while frame is not None:
         name = frame.f_globals.get("__name__", "")
         in_jax |= name in ("jax", "jaxlib") or name.startswith(("jax.", "jaxlib."))
-        in_loop |= (name, frame.f_code.co_name) == _SOLVER_LOOP
+        in_loop |= (name, frame.f_code.co_name) == solver_loop
         frame = frame.f_back
     return in_jax, in_loop
-
-
-_SOLVER_LOOP = (iterate.__module__, iterate.__name__)
 
 
 class _Interrupts:
@@ -666,10 +778,10 @@ def _say(line: str) -> None:
 
 
 def _fit(args: argparse.Namespace) -> int:
-    if args.model != AUTO and args.model not in MODEL_TEMPLATES:
+    if args.model != AUTO and args.model not in TEMPLATE_NAMES:
         raise CLIError(
             f"unknown model {args.model!r}; choose one of "
-            f"{', '.join(MODEL_TEMPLATES)}, or {AUTO}"
+            f"{', '.join(TEMPLATE_NAMES)}, or {AUTO}"
         )
     if args.max_steps < 1 or args.starts < 1 or args.finalists < 1:
         raise CLIError("--max-steps, --starts and --finalists must be at least 1")
@@ -699,25 +811,109 @@ def _fit(args: argparse.Namespace) -> int:
     fit_kwargs = {"max_steps": args.max_steps}
     if args.starts > 1:
         fit_kwargs["starts"] = args.starts
+    log = _FitLog(single=args.model != AUTO, terminal=sys.stdout.isatty())
     with _Interrupts() as interrupts:
-        # The steps' progress: printed every 2 s by a single fit (not while `auto`
-        # compares), and where a Ctrl-C deferred by `interrupts` stops the fit.
-        printer = progress_printer(args.model != AUTO)
-        fit_kwargs["progress"] = interrupts.progress(printer)
-        fitting = (args, experiments, smoothing, discard, fit_kwargs)
+        # The steps' progress (`log.step`), where a Ctrl-C deferred by `interrupts`
+        # also stops the fit.
+        fit_kwargs["progress"] = interrupts.progress(log.step)
+        fitting = (args, experiments, smoothing, discard, fit_kwargs, log)
         return _fit_and_save(*fitting, out, out in replacing, interrupts)
 
 
+# A line of progress every this many Levenberg–Marquardt steps when the output is not a
+# terminal (a log file, a pipe): on a terminal a single fit prints every 2 s and
+# `auto` only its candidates' lines, which left a log file silent for minutes.
+PROGRESS_STEPS = 10
+# The line `compare_models` prints when a candidate's fit ends: its time is replaced by
+# that fit's own (for a finalist `compare_models` gives screening and full fit together).
+_FIT_ENDED = re.compile(r"^(?P<name>[^:]+): (?P<seconds>\d+(?:\.\d*)?) s(?: in all)?, ")
+
+
+class _FitLog:
+    """What `jaxmr fit` prints while it fits, and each fit's own wall time.
+
+    `step` is the fits' `progress(step, loss)`; `line` is the `log` of `select_model`
+    (`--model auto`), whose lines say when a candidate's screening or full fit starts
+    (they end with "...") and ends. `times[(name, stage)]` is the wall time [s] of
+    each stage ("screening", "full", "refit"), compilation included.
+    """
+
+    def __init__(self, *, single: bool, terminal: bool, clock=time.perf_counter):
+        self.single, self.terminal, self.clock = single, terminal, clock
+        self.label = "fit"
+        self.times: dict[tuple[str, str], float] = {}
+        self._stage: tuple[str, str] | None = None
+        self._started = clock()
+        self._printed = time.monotonic()
+
+    def step(self, step: int, loss: float) -> None:
+        if self.terminal:
+            now = time.monotonic()
+            if not self.single or now - self._printed < 2.0:
+                return
+            self._printed = now
+        elif step % PROGRESS_STEPS:
+            return
+        print(f"    {self.label} step {step:4d}: loss {loss:.6g}", flush=True)
+
+    def line(self, line: str) -> None:
+        now = self.clock()
+        if line.endswith("..."):
+            self.close()
+            name, _, rest = line.partition(": ")
+            refit = re.match(r"selected (?P<name>.+?); refitting", line)
+            if refit:
+                self._stage = (refit["name"], "refit")
+            elif rest.startswith(("screened fit", "full fit")):
+                self._stage = (name, "screening" if rest[0] == "s" else "full")
+            if self._stage is not None:
+                self.label = f"{self._stage[0]} ({self._stage[1]})"
+                self._started = now
+        elif self._stage is not None:
+            own = now - self._started
+            self.times[self._stage] = own
+            self._stage = None
+            line = _FIT_ENDED.sub(lambda m: f"{m['name']}: {own:.1f} s, ", line, 1)
+        print(f"  {line}", flush=True)
+
+    def close(self) -> None:
+        """End the stage under way (the refit of `select_model` prints no end)."""
+        if self._stage is not None:
+            self.times[self._stage] = self.clock() - self._started
+            self._stage = None
+
+
+def _outcome(result) -> str:
+    """Why the fit stopped, in the terms of its `converged` (which the JSON report
+    writes): Levenberg–Marquardt's own test and progress stalled at the noise floor
+    both count as converged, if every parameter combination is identified."""
+    reason = result.reason
+    if result.converged:
+        if reason.startswith("stalled"):  # "stalled: no relative improvement ..."
+            return f"converged: {reason.partition(': ')[2]}"
+        return reason  # "converged (Levenberg–Marquardt's tolerance met)"
+    if result.interrupted or reason.startswith("not converged"):
+        return reason
+    if reason.startswith(("converged", "stalled")):  # stopped well, not identified
+        return (
+            f"not converged: {len(result.unidentified)} parameter combination(s) "
+            "not identified"
+        )
+    return f"not converged: {reason}"  # failed, or max_steps reached
+
+
 def _fit_and_save(
-    args, experiments, smoothing, discard, fit_kwargs, out, replacing, interrupts
+    args, experiments, smoothing, discard, fit_kwargs, log, out, replacing, interrupts
 ) -> int:
+    from jaxmr._identify.templates import MODEL_TEMPLATES
+
     start = time.perf_counter()
     selection = None
     try:
         if args.model == AUTO:
             candidates = _candidate_names(args, experiments)
             selection = _select(
-                args, experiments, candidates, smoothing, discard, fit_kwargs
+                args, experiments, candidates, smoothing, discard, fit_kwargs, log
             )
             name, result = selection.name, selection.result
         else:
@@ -746,11 +942,21 @@ def _fit_and_save(
     # From here on a Ctrl-C is deferred: the model is reported and written first.
     interrupts.finishing = True
     elapsed = time.perf_counter() - start
-    report = _fit_report(name, args.files, experiments, result, elapsed, selection)
+    report = _fit_report(
+        name, args.files, experiments, result, elapsed, selection, log.times
+    )
     report["smoothing_s"] = smoothing
     report["discard_s"] = discard
+    report["warnings"] = list(getattr(args, "warnings", []))
     print(f"\n{name}: {elapsed:.1f} s")
-    print(result)
+    # FitResult's own summary, its first line (the raw `reason`) in the words of
+    # `converged`.
+    summary = str(result).split("\n", 1)
+    summary[0] = (
+        f"fit: {_outcome(result)} after {result.num_steps} steps, "
+        f"loss {result.loss:.6g}"
+    )
+    print("\n".join(summary))
     if _save_model(result.model, out, report, replacing=replacing):
         interrupts.count += 1
     if result.interrupted:
@@ -768,9 +974,10 @@ def _fit_and_save(
     return 0
 
 
-def _select(args, experiments, candidates, smoothing, discard, fit_kwargs):
-    log = lambda line: print(f"  {line}", flush=True)
-    kwargs = dict(fit_kwargs, finalists=args.finalists, log=log)
+def _select(args, experiments, candidates, smoothing, discard, fit_kwargs, log):
+    from jaxmr._identify.select import select_model
+
+    kwargs = dict(fit_kwargs, finalists=args.finalists, log=log.line)
     if args.holdout:
         held = {os.path.abspath(p) for p in args.holdout}
         unknown = held - {os.path.abspath(p) for p in args.files}
@@ -806,9 +1013,45 @@ def _select(args, experiments, candidates, smoothing, discard, fit_kwargs):
             )
         except (RuntimeError, ValueError) as e:  # every candidate failed, or bad data
             raise CLIError(str(e)) from e
+    log.close()
     print(f"({selection.holdout})")
-    print(score_table(selection.scores))
+    print(_ranking_table(selection.scores, log.times))
     return selection
+
+
+def _candidate_outcome(score) -> str:
+    """A candidate's outcome for the ranking, in the words of `_outcome`."""
+    if score.error is not None:
+        return f"failed: {score.error}"
+    if not np.isfinite(score.median_test_nrmse):
+        outcome = "held-out simulation diverged"
+    elif score.result.converged:
+        outcome = "converged"
+    else:
+        outcome = _outcome(score.result).split(" (")[0]
+    return outcome + (" (screening only)" if score.stage != "full" else "")
+
+
+def _ranking_table(scores, times: dict) -> str:
+    """The candidates, best first, with each one's screening and full fit times [s]
+    (compilation included) and outcome."""
+
+    def seconds(name, stage):
+        value = times.get((name, stage))
+        return "-" if value is None else f"{value:.1f}"
+
+    rows = [
+        f"{'rank':>4}  {'model':<28} {'params':>6} {'screen [s]':>10} "
+        f"{'full [s]':>8} {'train':>8} {'held-out':>9}  outcome"
+    ]
+    for k, s in enumerate(scores, start=1):
+        rows.append(
+            f"{k:>4}  {s.name:<28} {s.num_parameters:>6} "
+            f"{seconds(s.name, 'screening'):>10} {seconds(s.name, 'full'):>8} "
+            f"{s.median_train_nrmse:>8.4f} {s.median_test_nrmse:>9.4f}  "
+            f"{_candidate_outcome(s)}"
+        )
+    return "\n".join(rows)
 
 
 def _save_model(model, out: Path, report: dict, *, replacing: bool) -> bool:
@@ -856,7 +1099,16 @@ def _rescue(write) -> str:
     return f"; the model was saved to {name} instead"
 
 
-def _fit_report(name, files, experiments, result, elapsed, selection) -> dict:
+def _file_digest(path) -> str | None:
+    """The SHA-256 of a file's bytes: `jaxmr report` knows a fitted file by it, under
+    any name or directory (None when it cannot be read)."""
+    try:
+        return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+    except OSError:
+        return None
+
+
+def _fit_report(name, files, experiments, result, elapsed, selection, times) -> dict:
     force_unit, input_unit = _units(experiments[0])
     report = {
         "template": name,
@@ -871,8 +1123,9 @@ def _fit_report(name, files, experiments, result, elapsed, selection) -> dict:
         "per_file": [
             {
                 "file": str(f),
+                "sha256": _file_digest(f),
                 "experiment": str(n),
-                "rmse": _json_number(r),
+                "rmse": _json_number(r),  # in `force_unit`
                 "nrmse": _json_number(e),
             }
             for f, n, r, e in zip(
@@ -880,6 +1133,7 @@ def _fit_report(name, files, experiments, result, elapsed, selection) -> dict:
             )
         ],
         "reason": result.reason,
+        "outcome": _outcome(result),
         "converged": bool(result.converged),
         "num_steps": int(result.num_steps),
         "loss": _json_number(result.loss),
@@ -896,6 +1150,11 @@ def _fit_report(name, files, experiments, result, elapsed, selection) -> dict:
                     "template": s.name,
                     "num_parameters": s.num_parameters,
                     "fit_time_s": round(s.fit_time, 3),
+                    **{
+                        f"{stage}_time_s": _json_seconds(times.get((s.name, stage)))
+                        for stage in ("screening", "full")
+                    },
+                    "outcome": _candidate_outcome(s),
                     "median_train_nrmse": _json_number(s.median_train_nrmse),
                     "median_test_nrmse": _json_number(s.median_test_nrmse),
                     "stage": s.stage,
@@ -951,6 +1210,8 @@ def _add_predict(subparsers) -> None:
 
 
 def _predict(args: argparse.Namespace) -> int:
+    from jaxmr._identify.score import predict_all
+
     out = Path(args.out)
     replacing = _plan_outputs([out], [args.file, args.params], force=args.force)
     _check_writable_file(out)
@@ -994,6 +1255,8 @@ def _predict(args: argparse.Namespace) -> int:
 def _prediction_error(path, experiment, predicted, discard: float) -> str:
     """The line that `predict` prints: RMSE and NRMSE against the measured force after
     the discarded start; the NRMSE (RMSE/std) is undefined for a constant force."""
+    from jaxmr._identify.score import nrmse, rmse
+
     t = np.asarray(experiment.t)
     keep = t >= t[0] + discard
     if not np.any(keep):
@@ -1020,7 +1283,13 @@ def _add_report(subparsers) -> None:
             "Simulate the model of a parameter file under each CSV experiment and "
             "write, per file, a figure of measured and predicted force against "
             "displacement, velocity and time (<file stem>.png), and a table of RMSE "
-            "and NRMSE per file with the model's parameters (report.csv, report.md)."
+            "[N or N·m] and NRMSE per file with the model's parameters (report.csv, "
+            "report.md). Each file is marked 'fitted' (the fit of PARAMS.json used "
+            "it, whatever its name now) or 'unseen' (the model never saw it: a test of "
+            "prediction). The start-up transient is left out of the errors and "
+            "figures, as the fit left it out: a fitted file's discarded start is the "
+            "fit's; an unseen file's is its '# discard:' line, else the fit's when it "
+            "used one value for every file. Smoothing follows the same rule."
         ),
     )
     command.add_argument("params", metavar="PARAMS.json", help="the fitted model")
@@ -1048,7 +1317,51 @@ def _figure_names(paths: Sequence[str]) -> list[str]:
     return names
 
 
+FITTED, UNSEEN, UNKNOWN = "fitted", "unseen", "unknown"
+
+
+def _fitted_index(path, fit_report: dict) -> int | None:
+    """The position of `path` among the fit's files: the same bytes (`sha256`, any
+    name or directory), or the same file under the name the fit was given."""
+    per_file = fit_report.get("per_file") or []
+    digest = _file_digest(path)
+    for k, row in enumerate(per_file):
+        if isinstance(row, dict) and digest is not None and row.get("sha256") == digest:
+            return k
+    for k, row in enumerate(per_file):
+        if isinstance(row, dict) and isinstance(row.get("file"), str):
+            if _same_file(path, row["file"]):
+                return k
+    return None
+
+
+def _fit_processing(files, fit_report: dict, key: str) -> tuple[list, list[str]]:
+    """Per file, the value [s] of `key` ("smoothing" or "discard") as `jaxmr report`'s
+    help says, and whether the fit used the file (fitted, unseen, or unknown for a
+    parameter file without a fit report)."""
+    own = _processing("file", files, key, f"# {key}:")
+    if not fit_report:
+        return own, [UNKNOWN] * len(files)
+    used = fit_report.get(f"{key}_s")
+    if not (isinstance(used, list) and all(isinstance(v, (int, float)) for v in used)):
+        used = []
+    common = float(used[0]) if used and all(v == used[0] for v in used) else None
+    values, status = [], []
+    for path, value in zip(files, own):
+        k = _fitted_index(path, fit_report)
+        if k is not None:
+            status.append(FITTED)
+            values.append(float(used[k]) if k < len(used) else value)
+        else:
+            status.append(UNSEEN)
+            has_line = jaxmr.data.read_processing(path).get(key) is not None
+            values.append(value if has_line or common is None else common)
+    return values, status
+
+
 def _report(args: argparse.Namespace) -> int:
+    from jaxmr._identify.score import nrmse, predict_all, rmse
+
     model, data = _load_model(args.params)
     experiments = _read_experiments(
         args.files, need_force=True, why="the comparison with the model"
@@ -1069,43 +1382,66 @@ def _report(args: argparse.Namespace) -> int:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    smoothing = _processing("file", args.files, "smoothing", "--smoothing")
-    discard = _processing("file", args.files, "discard", "--discard")
+    fit_report = data.get("report") if isinstance(data.get("report"), dict) else {}
+    smoothing, status = _fit_processing(args.files, fit_report, "smoothing")
+    discard, _ = _fit_processing(args.files, fit_report, "discard")
     predicted = predict_all(model, experiments, smoothing=smoothing)
     force_unit, input_unit = _units(experiments[0])
     rows = []
-    for path, e, p, figure_name, d in zip(
-        args.files, experiments, predicted, figure_names, discard
+    for path, e, p, figure_name, d, seen in zip(
+        args.files, experiments, predicted, figure_names, discard, status
     ):
-        keep = np.asarray(e.t) >= np.asarray(e.t)[0] + d
+        t = np.asarray(e.t)
+        keep = t >= t[0] + d
+        if not np.any(keep):
+            raise CLIError(f"{path}: the discarded start ({d:g} s) leaves no sample")
         error, relative = rmse(p, e.force, keep), nrmse(p, e.force, keep)
-        i = np.asarray(e.current)
-        rows.append((str(path), e.name, float(np.mean(i)), error, relative))
+        level = float(np.mean(np.asarray(e.current)))
+        rows.append((str(path), e.name, seen, level, d, error, relative))
+        after = f", from {d:g} s" if d else ""
         figure = jaxmr.plot.measured_vs_predicted_loops(
-            e,
-            p,
+            e.window(t[0] + d),
+            np.asarray(p)[keep],
             title=(
-                f"{e.name}: {type(model).__name__}, NRMSE {relative:.4f} "
-                f"(RMSE {error:.4g} {force_unit})"
+                f"{e.name} ({seen}{after}): {type(model).__name__}, NRMSE "
+                f"{relative:.4f}, RMSE {error:.4g} {force_unit}"
             ),
         )
         path = out / figure_name
         _save_figure(plt, figure, path, replacing=path in replacing)
-    fit_report = data.get("report") if isinstance(data.get("report"), dict) else {}
     parameters = _parameter_rows(model, fit_report)
+    unit = force_unit.replace("·", "")
 
     def write_table(f):
         writer = csv.writer(f, lineterminator="\n")
         writer.writerow(
-            ("file", "experiment", f"mean_input_{input_unit}", "rmse", "nrmse")
+            (
+                "file",
+                "experiment",
+                "data",
+                f"mean_input_{input_unit}",
+                "discard_s",
+                f"rmse_{unit}",
+                "nrmse",
+            )
         )
-        for path, name, level, error, relative in rows:
+        for path, name, seen, level, d, error, relative in rows:
             writer.writerow(
-                (path, name, f"{level:.6g}", f"{error:.10g}", f"{relative:.10g}")
+                (
+                    path,
+                    name,
+                    seen,
+                    f"{level:.6g}",
+                    f"{d:.6g}",
+                    f"{error:.10g}",
+                    f"{relative:.10g}",
+                )
             )
 
     _write_text(tables[0], write_table, replacing=tables[0] in replacing)
-    markdown = _report_markdown(args.params, model, rows, parameters, fit_report)
+    markdown = _report_markdown(
+        args.params, model, rows, parameters, fit_report, force_unit, args
+    )
     _write_text(
         tables[1], lambda f: f.write(markdown), replacing=tables[1] in replacing
     )
@@ -1131,19 +1467,38 @@ def _parameter_rows(model, fit_report: dict) -> list[tuple[str, float, str]]:
     return rows
 
 
-def _report_markdown(params, model, rows, parameters, fit_report) -> str:
-    nrmse = np.array([r[4] for r in rows])
-    lines = [
-        f"# jaxmr report: {type(model).__name__} from {params}",
+def _report_markdown(
+    params, model, rows, parameters, fit_report, force_unit, args
+) -> str:
+    lines = [f"# jaxmr report: {type(model).__name__} from {params}", ""]
+    for status, what in ((FITTED, "fitted"), (UNSEEN, "unseen (not fitted)")):
+        scores = [r[6] for r in rows if r[2] == status]
+        if scores:
+            lines.append(
+                f"Median NRMSE (RMSE/std of the measured force) over {len(scores)} "
+                f"{what} file(s): {np.median(scores):.4f}."
+            )
+    if not fit_report:
+        scores = [r[6] for r in rows]
+        lines.append(
+            f"Median NRMSE (RMSE/std of the measured force) over {len(rows)} file(s): "
+            f"{np.median(scores):.4f} ({params} has no fit report: which files were "
+            "fitted is unknown)."
+        )
+    lines += [
         "",
-        f"Median NRMSE (RMSE/std of the measured force) over {len(rows)} file(s): "
-        f"{np.median(nrmse):.4f}.",
+        "Errors after each file's discarded start (the hysteretic state is unknown "
+        "there).",
         "",
-        "| file | experiment | mean input | RMSE | NRMSE |",
-        "|---|---|---:|---:|---:|",
+        f"| file | experiment | data | mean input | discarded [s] | RMSE [{force_unit}] "
+        "| NRMSE |",
+        "|---|---|---|---:|---:|---:|---:|",
     ]
-    for path, name, level, error, e in rows:
-        lines.append(f"| {path} | {name} | {level:.4g} | {error:.4g} | {e:.4f} |")
+    for path, name, seen, level, d, error, e in rows:
+        lines.append(
+            f"| {path} | {name} | {seen} | {level:.4g} | {d:g} | {error:.4g} "
+            f"| {e:.4f} |"
+        )
     lines += [
         "",
         "| parameter | value | std error |",
@@ -1152,9 +1507,14 @@ def _report_markdown(params, model, rows, parameters, fit_report) -> str:
     for name, value, se in parameters:
         lines.append(f"| {name} | {value:.6g} | {se} |")
     if fit_report:
-        lines += ["", f"Fit: {fit_report.get('reason', 'unknown')}."]
+        outcome = fit_report.get("outcome", fit_report.get("reason", "unknown"))
+        lines += ["", f"Fit: {outcome}."]
         for warning in fit_report.get("unidentified", []):
             lines.append(f"WARNING: {warning}")
+        for warning in fit_report.get("warnings", []):
+            lines.append(f"WARNING (while fitting): {warning}")
+    for warning in getattr(args, "warnings", []):
+        lines.append(f"WARNING (this report): {warning}")
     return "\n".join(lines) + "\n"
 
 
@@ -1170,11 +1530,11 @@ def _add_convert(subparsers) -> None:
             "Convert a public dataset that jaxmr's loaders know into canonical CSV "
             "files (one per experiment, with the dataset's own smoothing and discarded "
             "start as comment lines, which `jaxmr fit` reads): "
-            + ", ".join(jaxmr.data.DATASETS)
+            + ", ".join(DATASET_NAMES)
             + ". Existing files are never replaced without --force."
         ),
     )
-    command.add_argument("dataset", choices=jaxmr.data.DATASETS, help="the dataset")
+    command.add_argument("dataset", choices=DATASET_NAMES, help="the dataset")
     command.add_argument(
         "source", metavar="SOURCE", help="the dataset's directory or file as published"
     )

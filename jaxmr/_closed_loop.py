@@ -280,7 +280,8 @@ def _simulate_system(
     slack = 1e-9 * (1 + i_max)
     in_range = jnp.all((command >= -slack) & (command <= i_max + slack))
     finite = jnp.all(jnp.isfinite(states)) & jnp.all(jnp.isfinite(y_end))
-    result = RESULTS.where(finite, RESULTS.successful, RESULTS.nonfinite)
+    # jaxmr's RESULTS extends diffrax's, whose codes pyright types as diffrax's enum.
+    result = RESULTS.where(finite, RESULTS.successful, RESULTS.nonfinite)  # pyright: ignore[reportArgumentType]
     result = RESULTS.where(
         (result == RESULTS.successful) & ~in_range, RESULTS.command_out_of_range, result
     )

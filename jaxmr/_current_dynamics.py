@@ -72,7 +72,8 @@ class FirstOrderLag(AbstractCurrentDynamics):
         return jnp.reshape(command, (1,)).astype(_plain(self.rate).dtype)
 
     def rates(self, state: State, command: Scalar) -> State:
-        return -self.rate * (state - command)
+        # A fit's constraint wrapper is unwrapped before the rates are evaluated.
+        return -self.rate * (state - command)  # pyright: ignore[reportOperatorIssue]
 
     def effective(self, state: State) -> Scalar:
         return state[0]

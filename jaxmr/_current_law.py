@@ -7,6 +7,7 @@ unit of the parameter it stands for.
 """
 
 import abc
+from typing import TYPE_CHECKING, Any, TypeAlias
 
 import equinox as eqx
 import jax
@@ -18,10 +19,14 @@ from ._misc import as_float_array, check_concrete
 
 def _plain(x):
     """A parameter's array, looking through a fitting constraint wrapper."""
-    return x.value() if isinstance(x, eqx.Module) else x
+    # Every Module here is a fitting constraint wrapper (`jaxmr.AbstractParameter`).
+    return x.value() if isinstance(x, eqx.Module) else x  # pyright: ignore[reportAttributeAccessIssue]
 
 
-def as_parameter(x):
+# Typed `Any` for the checker: a field keeps its law or constraint wrapper until
+# `resolve` (or the fit's unwrapping) puts an array in its place, and fields are
+# annotated with the array the model's methods see.
+def as_parameter(x: Any) -> Any:
     """Converter for model parameters: keep a current law or a fitting constraint
     (`Positive`, `Bounded`, `Fixed`: any equinox Module), make anything else an array."""
     return x if isinstance(x, eqx.Module) else as_float_array(x)
@@ -37,6 +42,14 @@ class AbstractCurrentLaw(eqx.Module):
     def range(self) -> tuple[Array, Array] | None:
         """The currents this law is valid for, or `None` when it is valid for any."""
         return None
+
+
+if TYPE_CHECKING:
+    # A model's methods run on the model `resolve`d at the current, where every law
+    # has become its value: the checker reads a parameter as that array.
+    Parameter: TypeAlias = Float[Array, ""]
+else:
+    Parameter = Float[Array, ""] | AbstractCurrentLaw
 
 
 class ConstantLaw(AbstractCurrentLaw):

@@ -223,6 +223,7 @@ class FixedStep(AbstractIntegrator):
         _, ys = jax.lax.scan(interval, y0, (ts[:-1], ts[1:]))
         ys = jnp.concatenate([y0[None], ys])
         finite = jnp.all(jnp.isfinite(ys))
-        result = RESULTS.where(finite, RESULTS.successful, RESULTS.nonfinite)
+        # jaxmr's RESULTS extends diffrax's, whose codes pyright types as diffrax's enum.
+        result = RESULTS.where(finite, RESULTS.successful, RESULTS.nonfinite)  # pyright: ignore[reportArgumentType]
         num_steps = jnp.asarray((ts.shape[0] - 1) * self.substeps)
         return ys, result, num_steps

@@ -246,9 +246,10 @@ def wk_state_space() -> tuple[
     Append it to a simulation's state to weight the body acceleration exactly in
     continuous time (e.g. to integrate $a_w^2$ inside the ODE).
     """
-    return tuple(
+    a, b, c, d = (
         jnp.asarray(m, dtype=default_float()) for m in (_WK_A, _WK_B, _WK_C, _WK_D)
     )
+    return a, b, c, d
 
 
 def _wk_discrete(dt):

@@ -16,6 +16,7 @@ travelled $s = V (t - t_0)$ since it is reached at $t_0$.
 
 import equinox as eqx
 import jax
+import jax.core
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import PRNGKeyArray
@@ -536,7 +537,8 @@ def iso8608_road(
         # Numbers as arrays, sizes static: one compilation serves every class and speed
         # with the same grid sizes.
         numbers = [as_float_array(x) for x in (gd0, speed, dt, n_min, n_max, waviness)]
-        values, derivatives = _sinusoids(key, *numbers, n_samples, n_fft)
+        # pyright cannot count the list's items (six) before the positional ones.
+        values, derivatives = _sinusoids(key, *numbers, n_samples, n_fft)  # pyright: ignore[reportCallIssue]
     else:
         if waviness != 2.0:
             raise ValueError(
@@ -545,7 +547,8 @@ def iso8608_road(
             )
         gain = _white_noise_gain(gd0, speed)
         numbers = [as_float_array(x) for x in (gain, speed, dt, n_min)]
-        values = _white_noise(key, *numbers, n_samples, start_at_zero)
+        # pyright cannot count the list's items (four) before the positional ones.
+        values = _white_noise(key, *numbers, n_samples, start_at_zero)  # pyright: ignore[reportCallIssue]
         derivatives = None
     if start_at_zero:
         values = values - values[0]
@@ -632,12 +635,13 @@ def road_psd(
     """
     z = np.asarray(z, dtype=float)
     z = z.reshape(-1, z.shape[-1])
-    dx = float(speed) * float(dt)
+    # `ScalarLike` admits complex arrays, which `float` refuses at run time.
+    dx = float(speed) * float(dt)  # pyright: ignore[reportArgumentType]
     n_total = z.shape[-1]
     if segment_length is None:
         n_seg = n_total // 8
     else:
-        n_seg = int(round(float(segment_length) / dx))
+        n_seg = int(round(float(segment_length) / dx))  # pyright: ignore[reportArgumentType]
     if not 8 <= n_seg <= n_total:
         raise ValueError(
             f"road_psd: a segment of {n_seg} samples does not fit: give a "

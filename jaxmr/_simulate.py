@@ -8,11 +8,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 from jax.extend.core import Literal as JaxprLiteral
-from jax.sharding import Mesh, PartitionSpec
+from jax.sharding import PartitionSpec
 
 from ._current_law import ranged_laws
 from ._custom_types import ArrayLike, Float, ScalarLike
 from ._damper import Damper, as_damper
+from ._distribute import batch_mesh, gather, pad, padded_size, spread
 from ._hysteresis import AbstractHysteresis
 from ._integrate import AbstractIntegrator, Adaptive, FixedStep
 from ._misc import as_float_array, is_concrete, warn_if_float32
@@ -85,7 +86,8 @@ def _runtime_checks(damper: Damper, motion, current, ts, table_errors: bool = Tr
     in_tables = jnp.array(True)
     model = type(damper.hysteresis).__name__
     for path, law in ranged_laws(damper.hysteresis):
-        law_lo, law_hi = law.range()
+        # `ranged_laws` yields only laws whose range is not None.
+        law_lo, law_hi = law.range()  # pyright: ignore[reportGeneralTypeIssues]
         ok = (lo >= law_lo) & (hi <= law_hi)
         if table_errors:
             # The ranges are traced here: `simulate` and `sweep` quote them when the
@@ -124,7 +126,8 @@ def _check_tables_now(damper: Damper, bounds, device: str = "", current: str = "
         if not is_concrete(law):
             continue
         with jax.ensure_compile_time_eval():
-            law_lo, law_hi = (float(x) for x in law.range())
+            # `ranged_laws` yields only laws whose range is not None.
+            law_lo, law_hi = (float(x) for x in law.range())  # pyright: ignore[reportOptionalIterable]
         if lo < law_lo or hi > law_hi:
             spans = f"is {lo:g} A" if lo == hi else f"spans [{lo:g}, {hi:g}] A"
             raise eqx.EquinoxRuntimeError(
@@ -451,7 +454,7 @@ def _index(batched, size, indices):
     return eqx.combine(jax.tree.map(lambda a: a[indices], arrays), static), 0
 
 
-def _auto_batching(integrator) -> str:
+def _auto_batching(integrator) -> Literal["vmap", "map"]:
     # Measured on a 2-core CPU, one XLA device (benchmarks/simulate_sweep.py and the same
     # runs at other sizes: SAS brake, 10 s at 1 kHz, 2026-11-21), simulated s per wall s:
     # - FixedStep(3), 1024 runs: vmap 1580-3240 over 3 calls, map with batch_size 64:
@@ -493,6 +496,9 @@ def _sweep(
         throw,
         shared,
     )
+    # The batch may have been padded to a whole number of runs per device.
+    runs = int(np.prod(shape[:-1] if shared else shape))
+    sol = jax.tree.map(lambda a: a[:runs], sol)
     if throw:
         sol = sol.result.error_if(sol, jnp.any(sol.result != RESULTS.successful))
     # Shared: each (device, motion) pair carries all the currents, on a second axis.
@@ -530,11 +536,11 @@ def _sweep_flat(
         args = [x if ax == 0 else _broadcast(x, n) for x, ax in zip((d, m, c), axes)]
         return jax.lax.map(lambda a: one(*a), tuple(args), batch_size=batch_size)
 
-    devices = jax.local_devices()
+    mesh = batch_mesh()
     n = _batch_length(damper, motion, current, axes)
-    if len(devices) > 1 and n % len(devices) == 0:
-        # One shard of the batch per local device, each mapped/vmapped locally.
-        mesh = Mesh(np.array(devices), ("batch",))
+    if mesh is not None and n % mesh.size == 0:
+        # One shard of the batch per device (`sweep` padded it to a whole number of
+        # runs per device), each mapped/vmapped locally.
         specs = tuple(
             PartitionSpec("batch") if ax == 0 else PartitionSpec() for ax in axes
         )
@@ -661,11 +667,11 @@ def sweep(
             "a single run use `simulate`."
         )
     if grid:
-        shape = tuple(sizes[k] for k in batched)
+        shape = tuple(s for s in sizes if s is not None)  # the batched ones
         grids = np.indices(shape).reshape(len(shape), -1)
         index = {k: grids[j] for j, k in enumerate(batched)}
     else:
-        lengths = {sizes[k] for k in batched}
+        lengths = {s for s in sizes if s is not None}
         if len(lengths) != 1:
             raise ValueError(
                 "with grid=False the sequences are zipped and must have equal lengths, "
@@ -694,9 +700,19 @@ def sweep(
             module, axis = _index(module, size, index.get(k))
         args.append(module)
         axes.append(axis)
-    return _sweep(
-        *args, tuple(axes), ts, integrator, batching, batch_size, shape, throw, shared
+    # Spread over every device of every process (padded to a whole number of runs
+    # per device, trimmed inside `_sweep`); every process gets the whole solution.
+    mesh = batch_mesh()
+    n = _batch_length(*args, axes)  # pyright: ignore[reportCallIssue]  # 3 args
+    count = padded_size(n, mesh)
+    args = [
+        spread(pad(a, n, count), mesh) if ax == 0 else a for a, ax in zip(args, axes)
+    ]
+    d, m, c = args  # device, motion, current
+    solution = _sweep(
+        d, m, c, tuple(axes), ts, integrator, batching, batch_size, shape, throw, shared
     )
+    return gather(solution)
 
 
 def _shares_states(damper, currents, batched, grid, dtype) -> bool:

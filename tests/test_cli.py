@@ -4,11 +4,16 @@ and the numbers in the table behave physically."""
 import contextlib
 import csv
 import io
+import subprocess
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 import jaxmr
+import jaxmr.data
+import jaxmr.plot
 from jaxmr._cli import DEMO_AMPLITUDE_DEG, DEMO_CURRENTS, main
 
 FIGURES = (
@@ -111,3 +116,103 @@ def test_version_and_usage(capsys):
     with pytest.raises(SystemExit) as exit_info:
         main([])  # a command is required
     assert exit_info.value.code == 2
+
+
+def test_demo_says_why_the_loops_grow_so_little(demo, capsys):
+    """The printed growth of the energy per cycle from 0 to 1 A is the table's, and
+    the help gives the same round figure and its cause (the published law)."""
+    _, out, stdout = demo
+    energy = _summary(out)["energy_J"]
+    growth = energy[-1] / energy[0] - 1
+    assert f"{growth:+.1%}" in stdout
+    assert "published law" in stdout and "energy axis starts at 0" in stdout
+    with pytest.raises(SystemExit):
+        main(["demo", "--help"])
+    help_text = " ".join(capsys.readouterr().out.split())
+    assert f"about {100 * growth:.0f} % from 0 to 1 A" in help_text
+    assert "published law" in help_text and "alpha = 1 + 0.07 i" in help_text
+
+
+# ---------------------------------------------------------------------------------------
+# Figures
+
+
+def test_energy_axis_starts_at_zero():
+    # The SAS brake's energies: 9 % apart. An axis from the smallest value made the
+    # change fill the figure.
+    ax = jaxmr.plot.energy_vs_current([0.0, 0.5, 1.0], [0.2425, 0.2536, 0.2646])
+    bottom, top = ax.get_ylim()
+    assert bottom == 0.0 and top >= 0.2646
+    ax.figure.clf()
+
+
+def test_loop_legend_outside_the_axes():
+    solution = jaxmr.sweep(
+        jaxmr.sas_brake_dahl(),
+        jaxmr.Sine(0.06, 1.0),
+        np.array([0.0, 6.0]),
+        np.linspace(0.0, 1.0, 101),
+        integrator=jaxmr.FixedStep(),
+    )
+    ax = jaxmr.plot.loop(solution, "velocity", labels=["0 A", "6 A"], legend="outside")
+    ax.figure.canvas.draw()
+    legend = ax.get_legend().get_window_extent()
+    assert legend.x0 >= ax.get_window_extent().x1  # right of the axes, over no curve
+    ax = jaxmr.plot.loop(solution, labels=["0 A", "6 A"], legend=False)
+    assert ax.get_legend() is None
+    ax.figure.clf()
+
+
+# ---------------------------------------------------------------------------------------
+# Start-up: `jaxmr --help` and `import jaxmr` do not import JAX
+
+# Run in a fresh interpreter: this test process imported JAX long ago.
+_HELP_PROCESS = """
+import sys
+from jaxmr._cli import main
+
+for command in ([], ["demo"], ["fit"], ["predict"], ["report"], ["convert"]):
+    try:
+        main([*command, "--help"])
+    except SystemExit as e:
+        assert e.code == 0, (command, e.code)
+heavy = sorted(m for m in ("jax", "jaxlib", "equinox", "diffrax", "matplotlib") if m in sys.modules)
+print("imported:", heavy)
+"""
+
+
+def test_help_does_not_import_jax():
+    done = subprocess.run(
+        [sys.executable, "-c", _HELP_PROCESS],
+        capture_output=True,
+        text=True,
+        cwd=Path(__file__).parents[1],
+    )
+    assert done.returncode == 0, done.stderr
+    # Every command's help was printed, and none of the heavy packages imported.
+    assert done.stdout.count("usage: jaxmr") == 6
+    assert done.stdout.strip().endswith("imported: []"), done.stdout[-300:]
+
+
+def test_help_names_agree_with_the_package():
+    """The command line's own lists of the model templates and datasets (it cannot
+    import them for --help without JAX) are the package's."""
+    from jaxmr._cli import DATASET_NAMES, TEMPLATE_NAMES
+
+    assert TEMPLATE_NAMES == tuple(jaxmr.MODEL_TEMPLATES)
+    assert DATASET_NAMES == jaxmr.data.DATASETS
+
+
+def test_public_names_are_imported_on_first_use():
+    """`jaxmr/__init__.py` imports its public names lazily: every name of `__all__`
+    resolves, `dir` lists them, and after the first use `vars(jaxmr)` holds them all
+    (the model registry of `load_model` reads it)."""
+    names = jaxmr.__all__
+    assert len(names) > 100 and "simulate" in names and "BoucWen" in names
+    assert set(names) <= set(dir(jaxmr))
+    for name in names:
+        assert getattr(jaxmr, name) is not None, name
+    assert set(names) <= set(vars(jaxmr))
+    assert jaxmr.data.read_csv is not None and jaxmr.plot.loop is not None
+    with pytest.raises(AttributeError, match="no attribute 'not_a_name'"):
+        _ = jaxmr.not_a_name

@@ -17,13 +17,14 @@ import signal
 import tempfile
 import threading
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
 import jaxmr
 import jaxmr.data
-from jaxmr._cli import main
+from jaxmr._cli import _FitLog, _outcome, _ranking_table, main
 from jaxmr._identify.templates import MODEL_TEMPLATES
 
 CURRENTS = (0.0, 0.5, 1.0)  # A
@@ -531,8 +532,7 @@ def test_ctrl_c_while_the_fit_computes_its_report(
     its model is written and the command exits 130."""
     if threading.current_thread() is not threading.main_thread():
         pytest.skip("Python handles signals in the main thread only")
-    # The module (`jaxmr._identify.fit` is also the name of the function).
-    fit_module = importlib.import_module("jaxmr._identify.fit")
+    fit_module = importlib.import_module("jaxmr._identify.fitting")
     report = fit_module._report
     ctrl_c = signal.raise_signal
     if where == "jax":
@@ -554,3 +554,184 @@ def test_ctrl_c_while_the_fit_computes_its_report(
     assert f"interrupted while finishing; the fitted model is in {out}" in err
     assert not json.loads(out.read_text())["report"]["interrupted"]
     assert isinstance(jaxmr.load_model(out), jaxmr.Dahl)
+
+
+# ---------------------------------------------------------------------------------------
+# What `jaxmr fit` prints, and what its report records
+
+
+_STALLED = (
+    "stalled: no relative improvement above 0.0001 in 8 steps or 3 accepted steps "
+    "(the noise floor)"
+)
+
+
+def _result(reason, converged, unidentified=()):
+    return SimpleNamespace(
+        reason=reason,
+        converged=converged,
+        interrupted=False,
+        unidentified=unidentified,
+    )
+
+
+def test_outcome_words_follow_converged():
+    """A fit that stopped on stalled progress at the noise floor has converged (its
+    report says `"converged": true`): the printed outcome says so, not "stalled"."""
+    assert _outcome(_result(_STALLED, True)) == (
+        "converged: no relative improvement above 0.0001 in 8 steps or 3 accepted "
+        "steps (the noise floor)"
+    )
+    lm = "converged (Levenberg–Marquardt's tolerance met)"
+    assert _outcome(_result(lm, True)) == lm
+    assert _outcome(_result(_STALLED, False, ("a",))) == (
+        "not converged: 1 parameter combination(s) not identified"
+    )
+    assert _outcome(_result("reached max_steps = 25", False)) == (
+        "not converged: reached max_steps = 25"
+    )
+    # The candidates as `compare_models` ranks them (the attributes the table reads).
+    scores = [
+        SimpleNamespace(
+            name="dahl",
+            result=_result(_STALLED, True),
+            num_parameters=5,
+            median_train_nrmse=0.0055,
+            median_test_nrmse=0.0055,
+            error=None,
+            stage="full",
+        ),
+        SimpleNamespace(
+            name="bingham",
+            result=_result("reached max_steps = 25", False),
+            num_parameters=4,
+            median_train_nrmse=0.47,
+            median_test_nrmse=0.49,
+            error=None,
+            stage="screened",
+        ),
+    ]
+    table = _ranking_table(scores, {("dahl", "screening"): 2.5, ("dahl", "full"): 4.0})
+    dahl, bingham = table.splitlines()[1:]
+    assert dahl.split()[3:5] == ["2.5", "4.0"] and dahl.endswith("converged")
+    assert "stalled" not in table
+    assert bingham.endswith("not converged: reached max_steps = 25 (screening only)")
+    assert bingham.split()[3:5] == ["-", "-"]  # no time recorded: none made up
+
+
+def test_fit_log_prints_each_fits_own_time(capsys):
+    """`compare_models` gives a finalist's screening and full fit as one time ("in
+    all"): the command prints and records each fit's own."""
+    ticks = iter([0.0, 1.0, 12.0, 13.0, 19.0, 20.0, 24.0])
+    log = _FitLog(single=False, terminal=True, clock=lambda: next(ticks))
+    log.line("dahl: screened fit on 2 experiment(s)...")
+    log.line("dahl: 11.0 s, 18 steps, 5 parameters; median NRMSE train 0.0055")
+    log.line("dahl: full fit on 2 experiment(s), from its screening fit...")
+    log.line("dahl: 17.0 s in all, 3 steps; median NRMSE train 0.0055")
+    log.line("selected dahl; refitting on all 3 experiment(s)...")
+    log.close()
+    assert log.times == {
+        ("dahl", "screening"): 11.0,
+        ("dahl", "full"): 6.0,
+        ("dahl", "refit"): 4.0,
+    }
+    printed = capsys.readouterr().out
+    assert "  dahl: 11.0 s, 18 steps" in printed
+    assert "  dahl: 6.0 s, 3 steps; median" in printed and "in all" not in printed
+
+
+def test_fit_log_prints_steps_when_not_on_a_terminal(capsys):
+    to_file = _FitLog(single=False, terminal=False)
+    to_file.label = "dahl (screening)"
+    for step in range(1, 25):
+        to_file.step(step, 0.5)
+    printed = capsys.readouterr().out.splitlines()
+    assert printed == [
+        "    dahl (screening) step   10: loss 0.5",
+        "    dahl (screening) step   20: loss 0.5",
+    ]
+    on_terminal = _FitLog(single=False, terminal=True)  # `auto`: its candidates' lines
+    on_terminal.step(10, 0.5)
+    assert capsys.readouterr().out == ""
+
+
+def test_auto_prints_and_records_each_candidates_stages(auto):
+    """Written to a file (the fixture's stdout is not a terminal), `auto` shows the
+    steps of its fits; the JSON has each stage's time and the words of `converged`."""
+    status, out, stdout = auto
+    assert status == 0
+    assert "bingham (screening) step   10: loss" in stdout
+    report = json.loads(out.read_text())["report"]
+    assert report["outcome"].startswith("converged") == report["converged"]
+    for row in report["selection"]["ranking"]:
+        assert row["screening_time_s"] > 0 and row["full_time_s"] > 0
+        # The total that `compare_models` reports is the sum of the two stages (1 ms
+        # of slack: the two clocks are read a few statements apart).
+        total = row["screening_time_s"] + row["full_time_s"]
+        assert abs(row["fit_time_s"] - total) < 0.05 * total
+        assert row["outcome"] in stdout
+
+
+def test_fit_summary_agrees_with_the_report(fitted):
+    _, out, stdout = fitted
+    report = json.loads(out.read_text())["report"]
+    (line,) = [x for x in stdout.splitlines() if x.startswith("fit: ")]
+    assert line.startswith(f"fit: {report['outcome']} after ")
+    assert line.startswith("fit: converged") == report["converged"]
+
+
+def test_fit_records_warnings_in_its_report(tmp_path, capsys):
+    """A file in millimetres: the warning names the file, is printed once and is kept
+    in the parameter file's report."""
+    e = _experiment(0.5, np.random.default_rng(1))
+    mm = tmp_path / "mm.csv"
+    with pytest.warns(UserWarning, match="millimetres"):
+        in_mm = jaxmr.data.Experiment(e.t, 1e3 * e.x, 1e3 * e.v, 0.5, e.force)
+    jaxmr.data.write_csv(in_mm, mm)
+    out = tmp_path / "p.json"
+    argv = ["fit", "--model", "bingham", "--max-steps", "2", "--out", out, mm]
+    status, _ = _run(argv)
+    assert status == 0
+    err = capsys.readouterr().err
+    (warning,) = json.loads(out.read_text())["report"]["warnings"]
+    assert (
+        warning.startswith(f"{mm}: the displacement amplitude")
+        and "millimetres" in warning
+    )
+    assert err.count(f"jaxmr fit: warning: {warning}") == 1
+
+
+def test_report_marks_fitted_and_unseen_files(fitted, files, tmp_path):
+    """A fitted file is known by its bytes under any name, a new one is unseen; the
+    start the fit discarded is left out of the errors (an unseen file without its own
+    `# discard:` line gets the fit's, which was one for all), and the RMSE has its
+    unit."""
+    _, params, _ = fitted
+    data = json.loads(params.read_text())
+    data["report"]["discard_s"] = [0.3] * len(files)  # as if fitted with --discard 0.3
+    edited = tmp_path / "p.json"
+    edited.write_text(json.dumps(data))
+    renamed = tmp_path / "renamed.csv"
+    renamed.write_bytes(files[0].read_bytes())
+    unseen = tmp_path / "dahl_0.25A.csv"
+    jaxmr.data.write_csv(_experiment(0.25, np.random.default_rng(2)), unseen)
+    out = tmp_path / "report"
+    status, stdout = _run(["report", edited, renamed, files[2], unseen, "--out", out])
+    assert status == 0
+    with open(out / "report.csv", newline="") as f:
+        rows = list(csv.DictReader(f))
+    assert [r["data"] for r in rows] == ["fitted", "fitted", "unseen"]
+    assert [float(r["discard_s"]) for r in rows] == [0.3] * 3
+    model = jaxmr.load_model(edited)
+    for row, path in zip(rows, (renamed, files[2], unseen)):
+        e = jaxmr.data.read_csv(path)
+        (predicted,) = jaxmr.predict_all(model, [e])
+        keep = np.asarray(e.t) >= 0.3
+        error = np.asarray(predicted)[keep] - np.asarray(e.force)[keep]
+        # The same simulation and arithmetic: equal to rounding (1e-9 relative).
+        np.testing.assert_allclose(
+            float(row["rmse_N"]), np.sqrt(np.mean(error**2)), rtol=1e-9
+        )
+    markdown = (out / "report.md").read_text()
+    assert "| RMSE [N] |" in markdown and "| unseen |" in markdown
+    assert "over 2 fitted file(s)" in markdown and "over 1 unseen" in markdown

@@ -4,7 +4,13 @@ The loaders are tested on the real files in `../shared/data` (beside the reposit
 missing data is a failure, not a skip.
 """
 
+import inspect
+import os
 import re
+import subprocess
+import sys
+import warnings
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -353,8 +359,62 @@ def test_csv_warns_about_millimetres(tmp_path):
     path = tmp_path / "mm.csv"
     t, x, _ = _sine(n=50)
     path.write_text("t,x,i\n" + "\n".join(f"{a},{1e3 * b},0" for a, b in zip(t, x)))
-    with pytest.warns(UserWarning, match=r"amplitude .* is \d+(\.\d+)? m"):
+    with pytest.warns(UserWarning, match=r"amplitude .* is \d+(\.\d+)? m") as caught:
+        line = inspect.currentframe().f_lineno + 1
         jd.read_csv(path)
+    # The warning names the file, and points at the line above (the user's call),
+    # not at equinox's code that runs the experiment's checks.
+    (warning,) = caught
+    assert str(warning.message).startswith(f"{path}: ")
+    assert (warning.filename, warning.lineno) == (__file__, line)
+
+
+def test_unit_warnings_point_at_the_callers_line():
+    t, x, v = _sine(n=10)
+    with pytest.warns(UserWarning, match="millimetres") as caught:
+        line = inspect.currentframe().f_lineno + 1
+        experiment = jd.Experiment(t, 1e3 * x, 1e3 * v, 0.5)
+    assert (caught[0].filename, caught[0].lineno) == (__file__, line)
+    # A window of a checked experiment is not warned about again.
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        experiment.window(0.0, float(t[5]))
+
+
+# Read, converted and written back by a process whose JAX runs in float32 (its
+# default): every column must still be float64, so the file's numbers come back exactly.
+_FLOAT32_PROCESS = """
+import sys
+import jax
+import numpy as np
+import jaxmr.data as jd
+
+assert not jax.config.jax_enable_x64
+e = jd.read_csv(sys.argv[1])
+assert all(np.asarray(getattr(e, k)).dtype == np.float64 for k in ("t", "x", "v", "current", "force")), e
+jd.write_csv(e, sys.argv[2])
+"""
+
+
+def test_csv_is_read_and_written_in_float64_when_jax_is_float32(tmp_path):
+    t = np.arange(50) * 1e-3  # 0.001 is not a float32 (0.0010000000474974513)
+    x = 0.0123456789 * np.sin(2 * np.pi * t)
+    source, copy = tmp_path / "in.csv", tmp_path / "out.csv"
+    jd.write_csv(jd.Experiment.from_arrays(t, x, current=0.5, force=1e3 * x), source)
+    environment = {k: v for k, v in os.environ.items() if not k.startswith("JAX_")}
+    done = subprocess.run(
+        [sys.executable, "-c", _FLOAT32_PROCESS, str(source), str(copy)],
+        capture_output=True,
+        text=True,
+        env=environment | {"JAX_ENABLE_X64": "0"},
+        cwd=Path(__file__).parents[1],
+    )
+    assert done.returncode == 0, done.stderr
+    data = lambda path: [
+        line for line in path.read_text().splitlines() if not line.startswith("#")
+    ]
+    assert data(copy) == data(source)  # the same text: no number went through float32
+    assert data(copy)[2].startswith("0.001,")
 
 
 # ---------------------------------------------------------------------------------------

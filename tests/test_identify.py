@@ -155,6 +155,13 @@ def test_fit_each_fits_independent_runs_in_one_batch():
         assert abs(values[".rho"] / rho - 1) < 0.02, values
         assert abs(values[".k_w"] / k_w - 1) < 0.02, values
         assert result.nrmse[0] < 0.013
+    # One start per experiment (here all the same): the same compiled batch, the
+    # same results, exactly.
+    again = jaxmr.fit_each([dahl_guess()] * 4, dahl_runs(rhos, k_ws), progress=False)
+    for result, other in zip(results, again):
+        np.testing.assert_array_equal(result.values, other.values)
+    with pytest.raises(ValueError, match="one per experiment"):
+        jaxmr.fit_each([dahl_guess()] * 3, dahl_runs(rhos, k_ws), progress=False)
 
 
 def test_multistart_keeps_the_best_and_interrupt_keeps_progress():

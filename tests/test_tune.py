@@ -117,6 +117,7 @@ def _setup(where, space=True):
 def test_tuning_gradient_matches_finite_differences():
     # The gradient tune follows, d loss / d log i_on, through the relaxed on/off law's
     # switching condition (zero for the hard law).
+    from jaxmr._tune.batch import road_batch
     from jaxmr._tune.loss import loss_and_grad, losses
 
     def i_on(pair):
@@ -125,10 +126,11 @@ def test_tuning_gradient_matches_finite_differences():
     setup = _setup(i_on)
     pair = (CAR, jaxmr.OnOffSkyhook(0.3, temperature=0.2))
     x = (jnp.log(jnp.array(0.3)),)
-    value, grad, _ = loss_and_grad(x, pair, None, TRAIN, setup)
+    batch = road_batch(TRAIN)
+    value, grad, _ = loss_and_grad(x, pair, None, batch, setup)
     h = 1e-5
-    up = jnp.mean(losses((x[0] + h,), pair, None, TRAIN, setup))
-    down = jnp.mean(losses((x[0] - h,), pair, None, TRAIN, setup))
+    up = losses((x[0] + h,), pair, None, batch, setup)[1]
+    down = losses((x[0] - h,), pair, None, batch, setup)[1]
     fd = (up - down) / (2 * h)
     # Central differences of a smooth loss at h = 1e-5: truncation ~h² and rounding
     # ~1e-16/h, far inside 1e-5.
@@ -138,6 +140,7 @@ def test_tuning_gradient_matches_finite_differences():
 def test_a_diverged_road_drops_out_of_the_gradient_instead_of_poisoning_it():
     # The second road's heights are NaN: its run is not finite. The loss says so
     # (inf), and the gradient is the first road's alone, finite, not NaN.
+    from jaxmr._tune.batch import road_batch
     from jaxmr._tune.loss import loss_and_grad
 
     bad = jax.tree.map(lambda x: x, TRAIN)
@@ -145,14 +148,14 @@ def test_a_diverged_road_drops_out_of_the_gradient_instead_of_poisoning_it():
     pair = (CAR, jaxmr.Skyhook(2000.0, 1.0, temperature=0.1))
     setup = _setup(c_sky)
     x = (jnp.log(jnp.array(2000.0)),)
-    value, grad, values = loss_and_grad(x, pair, None, bad, setup)
+    value, grad, values = loss_and_grad(x, pair, None, road_batch(bad), setup)
     assert not np.isfinite(float(values[1])) and np.isfinite(float(values[0]))
     assert float(value) == np.inf
     # The first road twice: a batch of the same size runs the same compiled code, so
     # the comparison is exact (a batch of one compiles differently, and this closed
     # loop turns that rounding into ~1e-12 of the gradient).
     first = jax.tree.map(lambda v: v[jnp.array([0, 0])], TRAIN)
-    _, alone, _ = loss_and_grad(x, pair, None, first, setup)
+    _, alone, _ = loss_and_grad(x, pair, None, road_batch(first), setup)
     assert np.isfinite(float(grad[0])) and float(grad[0]) != 0.0
     np.testing.assert_allclose(grad[0], alone[0], rtol=1e-14)
 
@@ -317,3 +320,19 @@ def test_tuning_over_damper_samples_averages_over_them():
     assert abs(result.initial_loss - mean_comfort(FAR)) > 1e-3 * mean_comfort(FAR)
     nominal = CAR.damper.hysteresis.alpha.a
     assert float(result.system.damper.hysteresis.alpha.a) == float(nominal)
+
+
+def test_padded_roads_leave_the_mean():
+    # Across devices a batch of roads is padded with copies of its last road
+    # (`road_batch`); `valid` marks the real ones. The padding counts neither in the
+    # mean nor in the failure test: a padded copy of a diverged road is not a second
+    # failure, and a finite padded value does not hide a real failure.
+    from jaxmr._tune.loss import mean_or_inf
+
+    valid = jnp.array([True, True, True, False])
+    assert float(mean_or_inf(jnp.array([1.0, 2.0, 6.0, 6.0]), valid)) == 3.0
+    assert float(mean_or_inf(jnp.array([1.0, 2.0, 6.0, jnp.inf]), valid)) == 3.0
+    assert float(mean_or_inf(jnp.array([1.0, jnp.nan, 6.0, 6.0]), valid)) == np.inf
+    # Samples x roads: the mask applies along the roads.
+    values = jnp.array([[1.0, 3.0, 9.0], [3.0, 5.0, 9.0]])
+    assert float(mean_or_inf(values, jnp.array([True, True, False]))) == 3.0

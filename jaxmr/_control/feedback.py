@@ -102,11 +102,11 @@ class ForceFeedback(AbstractController):
     ) -> "ForceFeedback":
         """$g(\\varphi) = w \\cdot \\varphi$, every gain $w_k$ zero."""
         return cls(
-            _zero_linear(len(features), jnp.result_type(float)),
-            scales,
-            as_float_array(i_max),
-            as_float_array(temperature),
-            tuple(features),
+            network=_zero_linear(len(features), jnp.result_type(float)),
+            scales=scales,
+            i_max=as_float_array(i_max),
+            temperature=as_float_array(temperature),
+            features=tuple(features),
         )
 
     @classmethod
@@ -136,6 +136,7 @@ class ForceFeedback(AbstractController):
             dtype=dtype,
         )
         last = net.layers[-1]
+        assert last.bias is not None  # an MLP's output layer has a bias by default
         net = eqx.tree_at(
             lambda n: (n.layers[-1].weight, n.layers[-1].bias),
             net,
@@ -143,11 +144,11 @@ class ForceFeedback(AbstractController):
         )
         net = _LinearAndMLP(_zero_linear(len(features), dtype), net)
         return cls(
-            net,
-            scales,
-            as_float_array(i_max),
-            as_float_array(temperature),
-            tuple(features),
+            network=net,
+            scales=scales,
+            i_max=as_float_array(i_max),
+            temperature=as_float_array(temperature),
+            features=tuple(features),
         )
 
     @staticmethod
@@ -170,7 +171,8 @@ class ForceFeedback(AbstractController):
     def desired_force(self, measurement, yield_force):
         """$F^*$ [N] from the measurements and the damper's yield force [N]."""
         phi = jnp.stack([measurement[name] for name in self.features]) / self.scales
-        return yield_force * self.network(phi)
+        # `network` is typed as a Module (a pytree to tune); every map is callable.
+        return yield_force * self.network(phi)  # pyright: ignore[reportCallIssue]
 
     def __call__(self, measurement, state, plant):
         yield_force = plant.yield_force(self.i_max)

@@ -144,8 +144,10 @@ def with_temperature(controllers, temperature):
 
     def set_one(node):
         if isinstance(node, AbstractController) and hasattr(node, "temperature"):
-            shape = jnp.broadcast_shapes(value.shape, jnp.shape(node.temperature))
-            t = jnp.broadcast_to(value, shape).astype(node.temperature.dtype)
+            # pyright does not narrow on `hasattr`.
+            old = node.temperature  # pyright: ignore[reportAttributeAccessIssue]
+            shape = jnp.broadcast_shapes(value.shape, jnp.shape(old))
+            t = jnp.broadcast_to(value, shape).astype(old.dtype)
             return eqx.tree_at(lambda c: c.temperature, node, t)
         return node
 

@@ -5,12 +5,10 @@ from typing import ClassVar
 import equinox as eqx
 import jax.numpy as jnp
 
-from .._current_law import AbstractCurrentLaw, as_parameter, is_law
-from .._custom_types import Array, Float, Scalar, State
+from .._current_law import Parameter, as_parameter, is_law
+from .._custom_types import Array, Scalar, State
 from .._misc import abs_pow
 from .base import AbstractHysteresis
-
-Parameter = Float[Array, ""] | AbstractCurrentLaw
 
 
 def bouc_wen_rate(z, v, A, beta, gamma, n):

@@ -5,12 +5,10 @@ from typing import ClassVar
 import equinox as eqx
 import jax.numpy as jnp
 
-from .._current_law import AbstractCurrentLaw, as_parameter
-from .._custom_types import Array, Float, Scalar, State
+from .._current_law import Parameter, as_parameter
+from .._custom_types import Scalar, State
 from .base import AbstractHysteresis
 from .bouc_wen import bouc_wen_rate
-
-Parameter = Float[Array, ""] | AbstractCurrentLaw
 
 
 class BoucWenBaberNoori(AbstractHysteresis):

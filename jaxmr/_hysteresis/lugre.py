@@ -5,11 +5,9 @@ from typing import ClassVar
 import equinox as eqx
 import jax.numpy as jnp
 
-from .._current_law import AbstractCurrentLaw, as_parameter
-from .._custom_types import Array, Float, Scalar, State
+from .._current_law import Parameter, as_parameter
+from .._custom_types import Scalar, State
 from .base import AbstractHysteresis
-
-Parameter = Float[Array, ""] | AbstractCurrentLaw
 
 
 class LuGre(AbstractHysteresis):

@@ -5,8 +5,8 @@ from typing import ClassVar
 import equinox as eqx
 import jax.numpy as jnp
 
-from .._current_law import AbstractCurrentLaw, as_parameter
-from .._custom_types import Array, Float, Scalar, State
+from .._current_law import Parameter, as_parameter
+from .._custom_types import Scalar, State
 from .base import AbstractHysteresis
 from .spencer import (
     spencer_constraints,
@@ -14,8 +14,6 @@ from .spencer import (
     spencer_rates,
     spencer_state_bounds,
 )
-
-Parameter = Float[Array, ""] | AbstractCurrentLaw
 
 
 class ShearThinningSpencer(AbstractHysteresis):

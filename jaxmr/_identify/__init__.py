@@ -5,15 +5,22 @@
 - `residual.py`: the simulation, the residual and its Jacobian;
 - `solver.py`: the Levenberg–Marquardt loop, starts and scaling;
 - `result.py`: the result and its statistics;
-- `fit.py`: `fit` and `fit_each`;
+- `fitting.py`: `fit` and `fit_each`;
 - `system.py`: `fit_system` (a whole machine from its response, the same engine);
 - `templates.py`: data-scaled initial models;
 - `select.py`: model selection on held-out data;
+- `design.py`: optimal experiment design (which tests to run) from the same Jacobian;
 - `score.py`: prediction and scores.
 """
 
 from .data import FitData as FitData, StepPolicy as StepPolicy, pack as pack
-from .fit import fit as fit, fit_each as fit_each
+from .design import (
+    Design as Design,
+    design_experiments as design_experiments,
+    planned_test as planned_test,
+    sine_grid as sine_grid,
+)
+from .fitting import fit as fit, fit_each as fit_each
 from .result import FitResult as FitResult
 from .score import (
     moving_average as moving_average,

@@ -431,7 +431,7 @@ def pad_to(data: FitData, shape: tuple[int, int, int, int]) -> FitData:
     point at step 0, padded residuals have weight 0."""
     lanes, steps, samples, residuals = shape
 
-    def grow(a, n, axis=0, value=0):
+    def grow(a, n, axis=0, value: float | bool = 0):
         width = [(0, 0)] * a.ndim
         width[axis] = (0, n - a.shape[axis])
         return jnp.pad(a, width, constant_values=value)

@@ -244,19 +244,32 @@ def poorly_determined(values, std, corr, names) -> list[str]:
     return messages
 
 
-def statistics(residuals_fn, free, static, data, extra, n_obs: int):
-    """Values, standard errors, correlations, singular values and right singular
-    vectors of the (relative) Jacobian, and s², at the optimum: cov = s² (JᵀJ)⁺ with
-    s² = RSS/(N − p)."""
+def jacobian_matrix(residuals_fn, free, static, data, extra):
+    """The residual and its Jacobian with respect to the free variables (the fit's
+    own coordinates: log of a `Positive`, the logistic variable of a `Bounded`) as one
+    NumPy matrix, residuals × variables in the order of `_parameter_names(free)`."""
     r, jac_tree = value_and_jacobian_jit(residuals_fn, free, static, data, extra)
     r = np.asarray(r)
-    J_raw = np.concatenate(
+    J = np.concatenate(
         [
             np.reshape(np.asarray(j), (r.shape[0], -1))
             for j in jax.tree.leaves(jac_tree)
         ],
         axis=1,
     )
+    return r, J
+
+
+def statistics(residuals_fn, free, static, data, extra, n_obs: int):
+    """Values, standard errors, correlations, singular values and right singular
+    vectors of the (relative) Jacobian, and s², at the optimum: cov = s² (JᵀJ)⁺ with
+    s² = RSS/(N − p)."""
+    r, J_raw = jacobian_matrix(residuals_fn, free, static, data, extra)
+    return statistics_from(r, J_raw, free, static, n_obs)
+
+
+def statistics_from(r, J_raw, free, static, n_obs: int):
+    """`statistics` from the residual and its Jacobian (`jacobian_matrix`'s layout)."""
     values, dvalue = _values_and_scale(free, static)
     # Chain rule: d r / d value = (d r / d free) / (d value / d free), elementwise.
     J = J_raw / np.where(dvalue == 0, 1.0, dvalue)[None, :]

@@ -14,7 +14,7 @@ from types import SimpleNamespace
 import equinox as eqx
 import numpy as np
 
-from .fit import fit
+from .fitting import fit
 from .result import FitResult
 from .score import nrmse, predict_all, rmse
 from .templates import MODEL_TEMPLATES
@@ -79,10 +79,10 @@ def score_table(scores: Sequence[ModelScore]) -> str:
             outcome = f"failed: {s.error}"
         elif not np.isfinite(s.median_test_nrmse):
             outcome = "held-out simulation diverged"
-        elif s.result.unidentified:
-            outcome = f"not identified ({len(s.result.unidentified)} combination(s))"
+        elif s.result.unidentified:  # pyright: ignore[reportOptionalMemberAccess]  # no error: a result
+            outcome = f"not identified ({len(s.result.unidentified)} combination(s))"  # pyright: ignore[reportOptionalMemberAccess]  # no error: a result
         else:
-            outcome = s.result.reason.split(":")[0].split(" (")[0]
+            outcome = s.result.reason.split(":")[0].split(" (")[0]  # pyright: ignore[reportOptionalMemberAccess]  # no error: a result
         if s.stage != "full" and s.error is None:
             outcome += " (screening only)"
         rows.append(
@@ -514,7 +514,7 @@ def select_model(
             raise ValueError("`score_from` needs `test`: give both or neither.")
         n = len(train)
         discards, widths = _per(discard, n), _per(smoothing, n)
-        fit_on, test, score_from, holdout, train_index, test_index = holdout_split(
+        fit_on, test, score_from, holdout, train_index, test_index = holdout_split(  # pyright: ignore[reportAssignmentType]  # indices=True: six items
             train, indices=True
         )
         everything = train
@@ -569,8 +569,8 @@ def select_model(
             + "\n".join(f"  {s.name}: {s.error}" for s in scores)
         )
     say = log or (lambda line: None)
-    if best.result.interrupted:
-        return Selection(best.name, best.result, scores, holdout)
+    if best.result.interrupted:  # pyright: ignore[reportOptionalMemberAccess]  # no error: a result
+        return Selection(best.name, best.result, scores, holdout)  # pyright: ignore[reportArgumentType]  # no error: a result
     say(f"selected {best.name}; refitting on all {len(everything)} experiment(s)...")
     kwargs = dict(fit_kwargs)
     kwargs.pop("finalists", None)
@@ -579,7 +579,7 @@ def select_model(
     # Started from the training fit (one start: `starts` served the first search).
     kwargs.pop("starts", None)
     result = fit(
-        best.result.constrained,
+        best.result.constrained,  # pyright: ignore[reportArgumentType, reportOptionalMemberAccess]  # no error: a result
         everything,
         discard=zero(all_discard),
         smoothing=zero(all_smoothing),

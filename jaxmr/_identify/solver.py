@@ -21,6 +21,7 @@ import optimistix as optx
 from jax.flatten_util import ravel_pytree
 
 from .._custom_types import Array, Bool, Float
+from .._distribute import to_host
 from .._parameter import Bounded, Fixed, Positive, free_filter, is_parameter
 from .residual import value_and_jacobian, value_and_jacobian_jit
 from .result import Outcome
@@ -367,7 +368,9 @@ def iterate(solver, ys, args, data_axis, max_steps, patience, ftol, report):
             ys, dynamic, loss, at, done, bad = _step(
                 solver, ys, dynamic, static_state, args, data_axis
             )
-            loss = np.asarray(loss)
+            # Every process reads the whole batch (one collective when it is spread
+            # over processes), so all take the same decisions below.
+            loss, done, bad = (to_host(a) for a in (loss, done, bad))
             better = np.isfinite(loss) & (loss < best_loss)
             best_y = jax.tree.map(
                 lambda new, old, b=better: jnp.where(
@@ -384,8 +387,8 @@ def iterate(solver, ys, args, data_axis, max_steps, patience, ftol, report):
             history.append(float(np.min(best_loss)))
             report(k, float(np.min(best_loss)))
             active = ~(converged | failed | stalled)
-            failed |= active & np.asarray(bad)
-            converged |= active & np.asarray(done) & ~np.asarray(bad)
+            failed |= active & bad
+            converged |= active & done & ~bad
             stalled |= active & (
                 ((k - last_improvement) >= patience)
                 | (accepted_since >= ACCEPTED_PATIENCE)

@@ -25,7 +25,7 @@ from .._parameter import free_filter, unwrap
 from .._signal import AbstractSignal, _is_uniform, as_signal
 from .._systems.base import AbstractSystem
 from .data import _per_experiment
-from .fit import warn_if_float32
+from .fitting import warn_if_float32
 from .result import FitResult, assemble, statistics
 from .solver import (
     FastLevenbergMarquardt,

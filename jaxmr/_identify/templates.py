@@ -186,11 +186,11 @@ def data_scales(experiments: Sequence) -> DataScales:
         current_min=i_min,
         current_max=i_max,
         velocity_scale=v_scales[k],
-        yield_force=yield_force,
-        viscous=viscous,
+        yield_force=yield_force,  # pyright: ignore[reportArgumentType]  # pairs from `best`
+        viscous=viscous,  # pyright: ignore[reportArgumentType]  # pairs from `best`
         saturation=saturations[j],
-        hysteretic_force=hysteretic_force,
-        hysteretic_viscous=hysteretic_viscous,
+        hysteretic_force=hysteretic_force,  # pyright: ignore[reportArgumentType]  # pairs from `best`
+        hysteretic_viscous=hysteretic_viscous,  # pyright: ignore[reportArgumentType]  # pairs from `best`
     )
 
 
@@ -366,7 +366,7 @@ def _curved_law(at_min: float, at_max: float, scales: DataScales):
     if not scales.varying_current:
         return Positive(max(at_min, at_max))
     linear = _law(at_min, at_max, scales)
-    a, b = float(linear.a.value()), float(linear.b.value())
+    a, b = float(linear.a.value()), float(linear.b.value())  # pyright: ignore[reportAttributeAccessIssue]  # a LinearLaw of Positive
     return PolynomialLaw(np.array([a, b, 0.0]))
 
 

@@ -7,14 +7,12 @@ from typing import ClassVar
 import equinox as eqx
 import jax.numpy as jnp
 
-from .._current_law import AbstractCurrentLaw, LinearLaw, as_parameter
+from .._current_law import LinearLaw, Parameter, as_parameter
 from .._custom_types import Array, ArrayLike, Float, Scalar, ScalarLike, State
 from .._damper import Damper
 from .._hysteresis import AbstractHysteresis
 from .material import HodgdonMaterial, smooth_sign
 from .stage import MagneticStage
-
-Parameter = Float[Array, ""] | AbstractCurrentLaw
 
 
 class BinghamDisc(AbstractHysteresis):

@@ -1,6 +1,6 @@
 """The two-degree-of-freedom quarter car (SYSTEMS.md §3)."""
 
-from typing import ClassVar
+from typing import Any, ClassVar
 
 import equinox as eqx
 import jax.numpy as jnp
@@ -154,7 +154,7 @@ def passenger_car(damper, **overrides) -> QuarterCar:
     """A passenger-car quarter (SYSTEMS.md §3's comparison set; the numbers of the
     control benchmark): ms = 350 kg, mu = 40 kg, ks = 20 kN/m, kt = 200 kN/m, no passive
     damping besides `damper` (body mode 1.1 Hz, wheel hop 11.8 Hz)."""
-    values = dict(ms=350.0, mu=40.0, ks=20e3, kt=200e3) | overrides
+    values: dict[str, Any] = dict(ms=350.0, mu=40.0, ks=20e3, kt=200e3) | overrides
     return QuarterCar(damper=damper, **values)
 
 
@@ -162,5 +162,7 @@ def spencer_quarter_car(damper, **overrides) -> QuarterCar:
     """The published quarter-car set (source doc 004, from Spencer's work, as printed):
     ks = 80 000 N/m, kt = 500 000 N/m, mu = 320 kg, ms = 2 500 kg, cs = 320 N·s/m,
     ct = 15 050 N·s/m."""
-    values = dict(ms=2500.0, mu=320.0, ks=80e3, kt=500e3, cs=320.0, ct=15050.0)
+    values: dict[str, Any] = dict(
+        ms=2500.0, mu=320.0, ks=80e3, kt=500e3, cs=320.0, ct=15050.0
+    )
     return QuarterCar(damper=damper, **(values | overrides))

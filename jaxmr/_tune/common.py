@@ -3,25 +3,16 @@
 import time
 
 import equinox as eqx
-import jax
 import jax.numpy as jnp
 import numpy as np
 
 from .._control.base import AbstractController
+from .._distribute import to_host
 from .._systems.base import AbstractSystem
-from .loss import Setup, losses, mean_or_inf
+from .batch import ROADS_EXAMPLE, batch_size, road_batch
+from .loss import Setup, losses
 from .result import TuneResult
 from .space import as_space, as_tuple_where, from_values, initial_values, to_values
-
-
-def _batch_size(tree, what: str, example: str) -> int:
-    sizes = {x.shape[0] for x in jax.tree.leaves(tree) if eqx.is_array(x) and x.ndim}
-    if len(sizes) != 1:
-        raise ValueError(
-            f"`{what}` must be a batch with one leading axis (e.g. {example}), got "
-            f"leading sizes {sorted(sizes) or 'none'}."
-        )
-    return sizes.pop()
 
 
 def check_inputs(system, controller, roads, samples) -> int:
@@ -34,18 +25,14 @@ def check_inputs(system, controller, roads, samples) -> int:
         raise TypeError(
             f"`controller` must be a jaxmr controller, got {type(controller).__name__}."
         )
-    runs = _batch_size(
-        roads,
-        "roads",
-        "`jax.vmap(lambda k: jaxmr.iso8608_road('C', 20.0, 10.0, k))(keys)`",
-    )
+    runs = batch_size(roads, "roads", ROADS_EXAMPLE)
     if samples is not None:
         if not isinstance(samples, AbstractSystem):
             raise TypeError(
                 "`samples` must be a batch of systems (one leading axis), e.g. from "
                 f"`jaxmr.sample_systems`, got {type(samples).__name__}."
             )
-        runs *= _batch_size(samples, "samples", "`jaxmr.sample_systems(...)`")
+        runs *= batch_size(samples, "samples", "`jaxmr.sample_systems(...)`")
     return runs
 
 
@@ -65,14 +52,15 @@ def prepare(
     delay,
 ):
     """Every tuner's start: the checked inputs, the runs one evaluation simulates, the
-    static `Setup` of the loss, the pair and the optimiser's starting variables."""
+    static `Setup` of the loss, the pair, the optimiser's starting variables and the
+    `road_batch` of the roads."""
     runs = check_inputs(system, controller, roads, samples)
     where = as_tuple_where(parameters)
     space = as_space(log_space, bounds, who)
     setup = Setup(space, where, objective, duration, dt, substeps, delay)
     pair = (system, controller)
     u0 = from_values(initial_values(pair, where, log_space, who), space, who)
-    return runs, setup, pair, u0
+    return runs, setup, pair, u0, road_batch(roads)
 
 
 def set_temperature(controller, temperature):
@@ -86,7 +74,7 @@ def held_out_loss(u, pair, samples, validation, setup: Setup) -> float | None:
     """The hard pair's mean objective on the validation roads."""
     if validation is None:
         return None
-    return float(mean_or_inf(losses(u, pair, samples, validation, setup)))
+    return float(to_host(losses(u, pair, samples, road_batch(validation), setup)[1]))
 
 
 def printer(progress, who: str):

@@ -8,7 +8,9 @@ import numpy as np
 
 from .._closed_loop import SystemSolution, simulate_system
 from .._control.base import AbstractController
+from .._distribute import batch_mesh, pad, padded_size, spread, to_host
 from .._systems.base import AbstractSystem
+from .batch import ROADS_EXAMPLE, batch_size
 from .loss import comfort
 
 
@@ -31,19 +33,15 @@ def evaluate(
     **Returns:** `{name: array of one value per road}`.
     """
     metrics = {"comfort": comfort} if metrics is None else dict(metrics)
-    return {
-        name: np.asarray(value)
-        for name, value in _evaluate(
-            system,
-            controller,
-            roads,
-            duration,
-            tuple(metrics.items()),
-            dt,
-            substeps,
-            delay,
-        ).items()
-    }
+    # The roads spread over every device of every process (padded to a whole number
+    # per device); every process gets every road's values.
+    n = batch_size(roads, "roads", ROADS_EXAMPLE)
+    mesh = batch_mesh()
+    roads = spread(pad(roads, n, padded_size(n, mesh)), mesh)
+    values = _evaluate(
+        system, controller, roads, duration, tuple(metrics.items()), dt, substeps, delay
+    )
+    return {name: to_host(value)[:n] for name, value in values.items()}
 
 
 @eqx.filter_jit

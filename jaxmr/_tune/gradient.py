@@ -9,9 +9,10 @@ import numpy as np
 
 from .._closed_loop import SystemSolution
 from .._control.base import AbstractController
+from .._distribute import to_host
 from .._systems.base import AbstractSystem
 from .common import prepare, printer, set_temperature, tune_result
-from .loss import comfort, loss_and_grad, losses, mean_or_inf
+from .loss import comfort, loss_and_grad, losses
 from .result import TuneResult
 
 
@@ -129,7 +130,7 @@ def tune(
     if not np.all(rates > 0):
         raise ValueError(f"tune: `learning_rate` must be > 0, got {learning_rate}.")
     relaxed = temperatures is not None
-    runs, setup, hard, u = prepare(
+    runs, setup, hard, u, batch = prepare(
         "tune",
         system,
         controller,
@@ -159,7 +160,7 @@ def tune(
 
     def check(u, step):
         nonlocal simulations, checked_u
-        judge(u, mean_or_inf(losses(u, hard, samples, roads, setup)), step)
+        judge(u, to_host(losses(u, hard, samples, batch, setup)[1]), step)
         simulations += runs
         checked_u = u
 
@@ -177,7 +178,8 @@ def tune(
                 if relaxed
                 else hard
             )
-            value, grads, _ = loss_and_grad(u, pair, samples, roads, setup)
+            value, grads, _ = loss_and_grad(u, pair, samples, batch, setup)
+            value = to_host(value)
             simulations += runs
             if not relaxed:
                 judge(u, value, k)

@@ -61,25 +61,36 @@ def _over_runs(fn, system, samples, roads):
     return eqx.filter_vmap(over_roads)(samples)
 
 
-def mean_or_inf(values):
+def mean_or_inf(values, valid=None):
+    """The mean over the runs (the `valid` ones: roads on the last axis), or inf."""
+    if valid is None:
+        valid = jnp.ones(values.shape[-1:], bool)
+    valid = jnp.broadcast_to(valid, values.shape)
     # A run that failed (diverged, left the current range) makes the whole parameter
     # set unacceptable: the mean is inf, never a finite number that hides it.
-    return jnp.where(jnp.all(jnp.isfinite(values)), jnp.mean(values), jnp.inf)
+    finite = jnp.all(jnp.isfinite(values) | ~valid)
+    total = jnp.sum(jnp.where(valid, values, 0.0))
+    return jnp.where(finite, total / jnp.sum(valid).astype(values.dtype), jnp.inf)
 
 
 @eqx.filter_jit
-def losses(u, pair, samples, roads, setup: Setup):
-    """The objective of every run, shape (roads,) or (samples, roads)."""
+def losses(u, pair, samples, batch, setup: Setup):
+    """The objective of every run of a `road_batch`, shape (roads,) or (samples,
+    roads), padding included, and the batch's mean (`mean_or_inf`)."""
     system, controller = pair
-    return _over_runs(
+    roads, valid = batch
+    values = _over_runs(
         lambda s, road: _one_run(u, s, controller, road, setup), system, samples, roads
     )
+    return values, mean_or_inf(values, valid)
 
 
 @eqx.filter_jit
-def population_losses(us, pair, samples, roads, setup: Setup):
-    """`mean_or_inf` of the runs for every candidate (the leading axis of each u)."""
+def population_losses(us, pair, samples, batch, setup: Setup):
+    """`mean_or_inf` of the runs of a `road_batch` for every candidate (the leading
+    axis of each u)."""
     system, controller = pair
+    roads, valid = batch
 
     def one(u):
         values = _over_runs(
@@ -88,13 +99,13 @@ def population_losses(us, pair, samples, roads, setup: Setup):
             samples,
             roads,
         )
-        return mean_or_inf(values)
+        return mean_or_inf(values, valid)
 
     return jax.vmap(one)(us)
 
 
 @eqx.filter_jit
-def loss_and_grad(u, pair, samples, roads, setup: Setup):
+def loss_and_grad(u, pair, samples, batch, setup: Setup):
     """The mean objective and its gradient with respect to u, NaN-safe.
 
     Every run is differentiated on its own (under `vmap`): a run whose value or
@@ -104,12 +115,13 @@ def loss_and_grad(u, pair, samples, roads, setup: Setup):
     times its infinite Jacobian is NaN in the gradient of every parameter.
     """
     system, controller = pair
+    roads, valid = batch
 
     def one(s, road):
         return jax.value_and_grad(lambda u: _one_run(u, s, controller, road, setup))(u)
 
     values, grads = _over_runs(one, system, samples, roads)
-    ok = jnp.isfinite(values)
+    ok = jnp.isfinite(values) & jnp.broadcast_to(valid, values.shape)
     for g in grads:
         ok = ok & jnp.all(jnp.isfinite(g), axis=tuple(range(values.ndim, g.ndim)))
     count = jnp.maximum(jnp.sum(ok), 1).astype(values.dtype)
@@ -118,4 +130,4 @@ def loss_and_grad(u, pair, samples, roads, setup: Setup):
         mask = ok.reshape(ok.shape + (1,) * (g.ndim - ok.ndim))
         return jnp.sum(jnp.where(mask, g, 0.0), axis=tuple(range(ok.ndim))) / count
 
-    return mean_or_inf(values), tuple(masked_mean(g) for g in grads), values
+    return mean_or_inf(values, valid), tuple(masked_mean(g) for g in grads), values

@@ -12,6 +12,7 @@ from jax.flatten_util import ravel_pytree
 
 from .._closed_loop import SystemSolution
 from .._control.base import AbstractController
+from .._distribute import to_host
 from .._systems.base import AbstractSystem
 from .common import finite_min, prepare, printer, tune_result
 from .loss import comfort, population_losses
@@ -20,13 +21,13 @@ from .space import as_space
 
 
 def _prepare(who, simulations, *args):
-    runs, setup, pair, u0 = prepare(who, *args)
+    runs, setup, pair, u0, batch = prepare(who, *args)
     if not isinstance(simulations, int) or simulations < runs:
         raise ValueError(
             f"{who}: `simulations` must be an integer >= the runs of one evaluation "
             f"({runs}), got {simulations!r}."
         )
-    return runs, setup, pair, u0
+    return runs, setup, pair, u0, batch
 
 
 def random_search(
@@ -65,7 +66,7 @@ def random_search(
     who = "random_search"
     as_space(log_space, bounds, who)  # checks the bounds
     # Candidates are drawn and clipped in log values (or values): no sigmoid here.
-    runs, setup, pair, u0 = _prepare(
+    runs, setup, pair, u0, batch = _prepare(
         who,
         simulations,
         system,
@@ -114,7 +115,7 @@ def random_search(
     try:
         for j in range(0, trials, size):
             us = jax.vmap(unravel)(padded[j : j + size])
-            chunk = np.asarray(population_losses(us, pair, samples, roads, setup))
+            chunk = to_host(population_losses(us, pair, samples, batch, setup))
             scores.extend(chunk[: trials - j])
             best = finite_min(scores)[1]
             history.extend([best] * len(chunk[: trials - j]))
@@ -184,7 +185,7 @@ def cma_es(
             'cma_es needs evosax: pip install "jaxmr[search]" (or evosax).'
         ) from error
     who = "cma_es"
-    runs, setup, pair, u0 = _prepare(
+    runs, setup, pair, u0, batch = _prepare(
         who,
         simulations,
         system,
@@ -221,9 +222,11 @@ def cma_es(
     report = printer(progress, "cma_es generation")
     start = time.perf_counter()
     initial = float(
-        population_losses(jax.vmap(unravel)(flat0[None]), pair, samples, roads, setup)[
-            0
-        ]
+        to_host(
+            population_losses(
+                jax.vmap(unravel)(flat0[None]), pair, samples, batch, setup
+            )
+        )[0]
     )
     spent = runs
     best_flat, best, history = flat0, initial, [initial]
@@ -233,11 +236,14 @@ def cma_es(
             if target is not None and best <= target:
                 reason = f"reached the target loss {target:.6g}"
                 break
-            key, ask_key, tell_key = jax.random.split(key, 3)
+            # An unpacked Array is Any, which pyright reads as `key`'s declared type.
+            key, ask_key, tell_key = jax.random.split(key, 3)  # pyright: ignore[reportArgumentType]
             with standard():
                 candidates, state = strategy.ask(ask_key, state, params)
-            scores = population_losses(
-                jax.vmap(unravel)(candidates), pair, samples, roads, setup
+            scores = to_host(
+                population_losses(
+                    jax.vmap(unravel)(candidates), pair, samples, batch, setup
+                )
             )
             spent += size * runs
             k, value = finite_min(scores)

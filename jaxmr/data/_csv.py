@@ -49,7 +49,12 @@ from pathlib import Path
 
 import numpy as np
 
-from ._experiment import VELOCITY_MEASURED, Experiment, check_columns
+from ._experiment import (
+    VELOCITY_MEASURED,
+    Experiment,
+    check_columns,
+    named_by_file,
+)
 
 _LINEAR = {"position": "x", "velocity": "v", "force": "F"}
 _ROTARY = {"position": "theta", "velocity": "omega", "force": "T"}
@@ -272,22 +277,34 @@ def read_csv(path: str | os.PathLike) -> Experiment:
     rotary = any(n in columns for n in _ROTARY.values())
     roles = _ROTARY if rotary else _LINEAR
     input_name = "i" if "i" in columns else "u"
-    common = dict(
-        current=columns[input_name],
-        force=columns.get(roles["force"]),
-        name=metadata.get("name") or path.stem,
-        rotary=rotary,
-        drive=_INPUTS[input_name],
-    )
-    if roles["velocity"] in columns:
+    t, position = columns["t"], columns[roles["position"]]
+    current, force = columns[input_name], columns.get(roles["force"])
+    name = metadata.get("name") or path.stem
+    drive = _INPUTS[input_name]
+    # Warnings of implausible units name the file (and point at the user's line that
+    # read it).
+    with named_by_file(path):
+        if roles["velocity"] not in columns:
+            return Experiment.from_arrays(
+                t,
+                position,
+                current=current,
+                force=force,
+                name=name,
+                rotary=rotary,
+                drive=drive,
+            )
         return Experiment(
-            columns["t"],
-            columns[roles["position"]],
+            t,
+            position,
             columns[roles["velocity"]],
+            current,
+            force,
+            name=name,
+            rotary=rotary,
+            drive=drive,
             velocity_source=metadata.get("velocity", VELOCITY_MEASURED),
-            **common,
         )
-    return Experiment.from_arrays(columns["t"], columns[roles["position"]], **common)
 
 
 def _seconds_text(key: str, value: float | None) -> str | None:

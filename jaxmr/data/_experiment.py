@@ -1,10 +1,15 @@
 """One measured test of a damper or brake: motion, input and force, with their checks."""
 
+import contextlib
+import contextvars
+import os
+import sys
 import warnings
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from typing import TypeAlias
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -14,6 +19,8 @@ from .._signal import Constant, Sampled
 
 # Plain lists are accepted as well as arrays: measured columns often arrive as lists.
 DataLike: TypeAlias = ArrayLike | Sequence[float]
+# A column as an experiment keeps it: float64 NumPy (a traced JAX array under jit).
+Column: TypeAlias = Float[np.ndarray, " samples"] | Float[Array, " samples"]
 
 VELOCITY_MEASURED = "measured"
 VELOCITY_CENTRAL = (
@@ -39,10 +46,61 @@ MAX_VELOCITY_RATIO = 10.0
 _DRIVES = ("current", "voltage")
 
 
-def _from_sequence(a):
-    # Lists are turned into arrays here: jax takes no lists (and the arrays may also be
-    # tracers, which must not go through numpy).
-    return np.asarray(a, dtype=np.float64) if isinstance(a, (list, tuple)) else a
+def as_column(a: DataLike) -> Float[np.ndarray, "..."] | Float[Array, "..."]:
+    """A measured column as an `Experiment` keeps it: a float64 NumPy array, whatever
+    JAX's precision. Measured data are not jit-able, and in float32 a file's
+    `t = 0.001` would become 0.0010000000474974513 and be written back so by
+    `write_csv`; the simulation converts the columns to JAX's precision where it uses
+    them (`motion`, `current_signal`, `jaxmr.fit`). An experiment built under jit from
+    traced arrays keeps them (JAX's default float)."""
+    if isinstance(a, jax.Array) and not is_concrete(a):
+        return as_float_array(a)
+    return np.asarray(a, dtype=np.float64)
+
+
+# The source named in the unit warnings while a file is read (`named_by_file`).
+_SOURCE: contextvars.ContextVar[str | None] = contextvars.ContextVar(
+    "jaxmr_experiment_source", default=None
+)
+
+
+# False while an experiment is cut from one already checked (`Experiment.window`): its
+# units were warned about once, with the whole record.
+_WARN_UNITS: contextvars.ContextVar[bool] = contextvars.ContextVar(
+    "jaxmr_experiment_warn_units", default=True
+)
+
+
+@contextlib.contextmanager
+def named_by_file(path: str | os.PathLike) -> Iterator[None]:
+    """Experiments built in this context name `path` in their unit warnings (the file
+    the user can open), not their own name."""
+    token = _SOURCE.set(str(path))
+    try:
+        yield
+    finally:
+        _SOURCE.reset(token)
+
+
+# The packages whose frames lie between a user's call and a unit warning: jaxmr, and
+# the libraries that build and check its modules (equinox runs `__check_init__`;
+# jaxtyping and beartype wrap functions when runtime type checking is on).
+_INTERNAL = ("jaxmr", "equinox", "jaxtyping", "beartype", "typeguard")
+
+
+def _user_stacklevel(frame) -> int:
+    """The `stacklevel` for `warnings.warn` called in `frame` that points at the first
+    frame outside `_INTERNAL`: the user's line that read the file or built the
+    experiment, not equinox's line that runs `__check_init__` (a fixed level cannot be
+    right: the number of frames between depends on the path taken, and on runtime type
+    checking's wrappers)."""
+    level = 1
+    while frame is not None:
+        package = frame.f_globals.get("__name__", "").partition(".")[0]
+        if package not in _INTERNAL:
+            break
+        frame, level = frame.f_back, level + 1
+    return level
 
 
 def _index_label(k: int) -> str:
@@ -132,7 +190,11 @@ def warn_implausible_units(
     position, velocity, load = ("theta", "omega", "T") if rotary else ("x", "v", "F")
 
     def warn(message):
-        warnings.warn(f"{where}: {message}", UserWarning, stacklevel=4)
+        warnings.warn(
+            f"{where}: {message}",
+            UserWarning,
+            stacklevel=_user_stacklevel(sys._getframe()),
+        )
 
     dt = float(np.median(np.diff(t)))
     if dt > MAX_TIME_STEP:
@@ -184,7 +246,9 @@ class Experiment(eqx.Module):
     displacement $x$ [m], velocity $v$ [m/s] and force $F$ [N]; for a brake
     (`rotary=True`) angle [rad], angular velocity [rad/s] and torque [N·m] in the same
     fields. The input is the coil current [A] (`drive="current"`) or the command voltage
-    [V] (`drive="voltage"`); a constant input is stored as a constant array.
+    [V] (`drive="voltage"`); a constant input is stored as a constant array. The
+    columns are float64 NumPy arrays whatever JAX's precision (`as_column`): measured
+    data keep their digits, and the simulation converts them where it uses them.
 
     The constructor checks the data at once (when the arrays are concrete): every column
     finite (the error names the column and the first bad index; nothing is dropped),
@@ -209,12 +273,12 @@ class Experiment(eqx.Module):
     - `velocity_source`: `"measured"`, or how `v` was computed.
     """
 
-    t: Float[Array, " samples"] = eqx.field(converter=as_float_array)
-    x: Float[Array, " samples"] = eqx.field(converter=as_float_array)
-    v: Float[Array, " samples"] = eqx.field(converter=as_float_array)
-    current: Float[Array, " samples"] = eqx.field(converter=as_float_array)
-    force: Float[Array, " samples"] | None = eqx.field(
-        converter=lambda f: None if f is None else as_float_array(f)
+    t: Column = eqx.field(converter=as_column)
+    x: Column = eqx.field(converter=as_column)
+    v: Column = eqx.field(converter=as_column)
+    current: Column = eqx.field(converter=as_column)
+    force: Column | None = eqx.field(
+        converter=lambda f: None if f is None else as_column(f)
     )
     name: str = eqx.field(static=True)
     rotary: bool = eqx.field(static=True)
@@ -241,17 +305,19 @@ class Experiment(eqx.Module):
             )
         if not isinstance(name, str) or not isinstance(velocity_source, str):
             raise TypeError("`name` and `velocity_source` must be strings.")
-        t, x, v, current, force = (_from_sequence(a) for a in (t, x, v, current, force))
-        t = as_float_array(t)
-        current = as_float_array(current)
-        if current.ndim == 0 and t.ndim == 1:
+        self.t = as_column(t)
+        self.x = as_column(x)
+        self.v = as_column(v)
+        column = as_column(current)
+        if column.ndim == 0 and self.t.ndim == 1:
             # A constant input is stored broadcast so every column has one length.
-            current = jnp.broadcast_to(current, t.shape)
-        self.t = t
-        self.x = x
-        self.v = v
-        self.current = current
-        self.force = force
+            column = (
+                np.full(self.t.shape, column)
+                if isinstance(column, np.ndarray)
+                else jnp.broadcast_to(column, self.t.shape)
+            )
+        self.current = column
+        self.force = None if force is None else as_column(force)
         self.name = name
         self.rotary = bool(rotary)
         self.drive = drive
@@ -263,9 +329,11 @@ class Experiment(eqx.Module):
             return  # built under jit from traced arrays: nothing to check by value
         columns = self._columns()
         check_columns(columns, self._where())
+        if not _WARN_UNITS.get():
+            return
         warn_implausible_units(
             *(columns[k] for k in ("t", "x", "v", "current")),
-            columns.get("force"),
+            columns.get("force"),  # pyright: ignore[reportCallIssue]  # four columns before it
             rotary=self.rotary,
             drive=self.drive,
             velocity_measured=self.velocity_source == VELOCITY_MEASURED,
@@ -273,6 +341,9 @@ class Experiment(eqx.Module):
         )
 
     def _where(self) -> str:
+        source = _SOURCE.get()
+        if source is not None:
+            return source
         return f"Experiment {self.name!r}" if self.name else "Experiment"
 
     def _columns(self) -> dict[str, np.ndarray]:
@@ -384,14 +455,18 @@ class Experiment(eqx.Module):
             keep &= t >= start
         if end is not None:
             keep &= t <= end
-        return Experiment(
-            self.t[keep],
-            self.x[keep],
-            self.v[keep],
-            self.current[keep],
-            None if self.force is None else self.force[keep],
-            name=self.name,
-            rotary=self.rotary,
-            drive=self.drive,
-            velocity_source=self.velocity_source,
-        )
+        token = _WARN_UNITS.set(False)
+        try:
+            return Experiment(
+                self.t[keep],
+                self.x[keep],
+                self.v[keep],
+                self.current[keep],
+                None if self.force is None else self.force[keep],
+                name=self.name,
+                rotary=self.rotary,
+                drive=self.drive,
+                velocity_source=self.velocity_source,
+            )
+        finally:
+            _WARN_UNITS.reset(token)

@@ -13,7 +13,12 @@ from typing import Literal, NamedTuple
 import numpy as np
 
 from .._custom_types import Float
-from ._experiment import VELOCITY_CENTRAL, Experiment, central_velocity
+from ._experiment import (
+    VELOCITY_CENTRAL,
+    Experiment,
+    central_velocity,
+    named_by_file,
+)
 
 MM = 1e-3  # m
 CM = 1e-2  # m
@@ -156,13 +161,22 @@ def load_utfsm(
         t, x, v, force = data.T
         x, v = x * MM, v * MM
         current = utfsm_test_conditions(path.stem).current
-        common = dict(current=current, force=force, name=path.stem)
-        if velocity == "central":
-            experiments.append(Experiment.from_arrays(t, x, **common))
-        else:
-            experiments.append(
-                Experiment(t, x, v, velocity_source=_UTFSM_VELOCITY_FILE, **common)
-            )
+        with named_by_file(path):  # unit warnings name the file
+            if velocity == "central":
+                experiment = Experiment.from_arrays(
+                    t, x, current=current, force=force, name=path.stem
+                )
+            else:
+                experiment = Experiment(
+                    t,
+                    x,
+                    v,
+                    current,
+                    force,
+                    name=path.stem,
+                    velocity_source=_UTFSM_VELOCITY_FILE,
+                )
+        experiments.append(experiment)
     return experiments
 
 
@@ -291,16 +305,17 @@ def load_nees(
         v, source = central_velocity(t, x), VELOCITY_CENTRAL
     else:
         source = _NEES_VELOCITY_FILE
-    return Experiment(
-        t,
-        x,
-        v,
-        y,
-        force,
-        name=path.stem,
-        drive="voltage",
-        velocity_source=source,
-    )
+    with named_by_file(path):  # unit warnings name the file
+        return Experiment(
+            t,
+            x,
+            v,
+            y,
+            force,
+            name=path.stem,
+            drive="voltage",
+            velocity_source=source,
+        )
 
 
 # ---------------------------------------------------------------------------------------

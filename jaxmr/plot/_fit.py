@@ -66,11 +66,13 @@ def measured_vs_predicted(
     if ax is None:
         _, ax = plt.subplots(figsize=(5, 4), layout="constrained")
     if getattr(experiment, "force", None) is not None:
-        style = {"color": "0.2", "lw": 1.0, "label": "measured"}
+        # A wide light band under a thin dark line: where the model follows the data
+        # (a good fit) the prediction is still seen, on top of the measurement.
+        style = {"color": "0.7", "lw": 2.5, "label": "measured"}
         ax.plot(
             abscissa, np.asarray(experiment.force), **style | (measured_kwargs or {})
         )
-    style = {"color": "C3", "lw": 1.0, "ls": "--", "label": "predicted"}
+    style = {"color": "C3", "lw": 1.0, "label": "predicted"}
     ax.plot(abscissa, predicted, **style | (predicted_kwargs or {}))
     ax.set_xlabel(label)
     ax.set_ylabel(force_label)

@@ -29,6 +29,7 @@ def loop(
     units: str = "linear",
     labels: Sequence[str] | None = None,
     last_cycles_from: float | None = None,
+    legend: bool | str = True,
     **line_kwargs,
 ):
     """Draw force (torque) against displacement, velocity or time for every run.
@@ -42,6 +43,10 @@ def loop(
       in rad are shown in degrees).
     - `labels`: one legend label per run.
     - `last_cycles_from`: draw only samples with t ≥ this time [s] (drop the transient).
+    - `legend`: with `labels`, where the legend goes: `True` (matplotlib's best place
+      inside the axes), `"outside"` (to the right of the axes, clear of loops that fill
+      them, e.g. Dahl's ellipses), any other matplotlib `loc`, or `False` (none).
+    - `line_kwargs`: further `Axes.plot` arguments (`linestyle`, `color`, ...).
 
     **Returns:** the Axes.
     """
@@ -80,9 +85,21 @@ def loop(
     )
     ax.set_ylabel(force_label)
     ax.grid(True, alpha=0.3)
-    if labels is not None:
-        ax.legend(fontsize="small")
+    if labels is not None and legend is not False:
+        _legend(ax, legend)
     return ax
+
+
+def _legend(ax, where: bool | str) -> None:
+    if where == "outside":
+        ax.legend(
+            fontsize="small",
+            loc="center left",
+            bbox_to_anchor=(1.01, 0.5),
+            frameon=False,
+        )
+    else:
+        ax.legend(fontsize="small", loc="best" if where is True else where)
 
 
 def loops(
@@ -93,7 +110,8 @@ def loops(
     last_cycles_from: float | None = None,
     title: str | None = None,
 ):
-    """Three panels for a sweep: force against displacement, velocity and time.
+    """Three panels for a sweep: force against displacement, velocity and time (the
+    legend, with `labels`, to the right of the last).
 
     **Returns:** the matplotlib Figure.
     """
@@ -105,8 +123,9 @@ def loops(
             against,
             ax=ax,
             units=units,
-            labels=labels if against == "time" else None,
+            labels=labels,
             last_cycles_from=last_cycles_from,
+            legend="outside" if against == "time" else False,
         )
     if title:
         fig.suptitle(title)
@@ -118,14 +137,21 @@ def energy_vs_current(
 ):
     """Energy dissipated per cycle [J] against current (or voltage).
 
+    The energy axis starts at 0 (energies are never negative): a change is seen at its
+    true scale, not magnified by an axis that starts near the smallest value (the SAS
+    brake's 9 % from 0 to 1 A would fill the figure).
+
     **Returns:** the Axes.
     """
     plt = _pyplot()
     if ax is None:
         _, ax = plt.subplots(figsize=(5, 4), layout="constrained")
-    ax.plot(np.asarray(currents), np.asarray(energies), "o-", label=label)
+    energies = np.asarray(energies)
+    ax.plot(np.asarray(currents), energies, "o-", label=label)
     ax.set_xlabel(f"Current [{current_unit}]")
     ax.set_ylabel("Energy dissipated per cycle [J]")
+    if np.all(energies >= 0):
+        ax.set_ylim(bottom=0.0, top=max(ax.get_ylim()[1], 1.05 * energies.max()))
     ax.grid(True, alpha=0.3)
     if label:
         ax.legend()

@@ -12,12 +12,13 @@ import optimistix as optx
 
 from .._current_law import ConstantLaw, is_law
 from .._damper import Damper
+from .._distribute import BATCH, batch_mesh, gather, padded_size, spread
 from .._hysteresis import AbstractHysteresis
 from .._misc import warn_if_float32
 from .._parameter import free_filter
-from .data import StepPolicy, as_step_policy, pack, pad_all, stack
-from .residual import residuals, simulate_jit
-from .result import FitResult, assemble, statistics
+from .data import FitData, StepPolicy, as_step_policy, pack, pad_all, stack
+from .residual import residuals, simulate, simulate_jit, value_and_jacobian
+from .result import FitResult, assemble, statistics, statistics_from
 from .solver import (
     FastLevenbergMarquardt,
     column_scale,
@@ -83,6 +84,19 @@ def _split_model(model):
     if not jax.tree.leaves(free):
         raise ValueError("nothing to fit: every parameter of `model` is Fixed.")
     return free, static
+
+
+def _lanes_on_devices(data: FitData) -> FitData:
+    """The lanes split over the process's devices (GPUs, or CPU cores as devices with
+    `XLA_FLAGS=--xla_force_host_platform_device_count=N`), each device scanning its
+    own lanes, when they divide evenly; else, or across processes, as they are."""
+    devices = jax.local_devices()
+    lanes = data.step.shape[0]
+    if jax.process_count() > 1 or len(devices) == 1 or lanes % len(devices):
+        return data
+    mesh = jax.sharding.Mesh(np.array(devices), (BATCH,))
+    where = lambda d: (d.inputs, d.step, d.reset)
+    return eqx.tree_at(where, data, spread(where(data), mesh))
 
 
 def _report(free, static, data, outcome, stats_data, threshold):
@@ -190,7 +204,8 @@ def fit(
     options = dict(
         weighting=weighting, discard=discard, smoothing=smoothing, lanes=lanes
     )
-    data = pack(experiments, policy, **options)
+    data = pack(experiments, policy, **options)  # pyright: ignore[reportArgumentType]  # keywords of mixed types
+    data = _lanes_on_devices(data)
     _check_enough_data(free, data)
     _check_current_laws(model, experiments)
     if solver is None:
@@ -220,10 +235,11 @@ def fit(
     # An interrupted fit reports at once, from the fit's own Jacobian.
     refine = statistics_refinement > 1 and not outcome.interrupted
     stats_data = (
-        pack(experiments, policy.refined(statistics_refinement), **options)
+        pack(experiments, policy.refined(statistics_refinement), **options)  # pyright: ignore[reportArgumentType]  # keywords of mixed types
         if refine
         else data
     )
+    stats_data = _lanes_on_devices(stats_data)
     return _report(
         jax.tree.map(lambda a: a[best], multiply(best_y, scale)),
         static,
@@ -235,7 +251,7 @@ def fit(
 
 
 def fit_each(
-    model: AbstractHysteresis | Damper,
+    model: AbstractHysteresis | Damper | Sequence[AbstractHysteresis | Damper],
     experiments: Sequence,
     *,
     integrator: StepPolicy | None = None,
@@ -258,25 +274,43 @@ def fit_each(
     The independent problems (one per experiment: e.g. one run per specimen or per
     test condition) run as one vmapped Levenberg–Marquardt loop; each stops on its own
     and keeps its own best parameters. Problems of different lengths are padded to
-    the longest (padding adds no residual). With several local devices and
-    `shard=True` the batch is split across them with `jax.sharding` (a
-    `NamedSharding` over a 1-D mesh of `jax.local_devices()`), the batch padded with
-    copies of its last problem to a multiple of the device count and trimmed after.
+    the longest (padding adds no residual). With several devices and `shard=True`
+    the batch is split across them with `jax.sharding` (a 1-D mesh of
+    `jax.devices()`), padded with copies of its last problem to a multiple of the
+    device count and trimmed after.
 
-    Several hosts: start every process with `jax.distributed.initialize()` and build
-    the mesh over `jax.devices()` (all hosts' devices) in your own script, placing each
-    host's share of the experiments with `jax.make_array_from_process_local_data`; the
-    same jitted step then runs across hosts. jaxmr itself never schedules work.
+    Several processes (hosts, or one process per GPU): start each with
+    `jax.distributed.initialize()` and make the same call with the same experiments
+    in every process. The mesh then spans every process's devices, each process
+    simulates and fits its own slice of the batch, and every process gets all the
+    results (README, "Scale-out"). jaxmr itself never schedules work.
 
-    **Arguments:** as `fit` (no `starts`), plus `shard`.
+    **Arguments:** as `fit` (no `starts`), plus `shard`; `model` may also be a
+    sequence of models of one structure, one start per experiment (their free
+    values; `Fixed` values are the first model's).
 
     **Returns:** one `FitResult` per experiment, in order.
     """
     warn_if_float32("jaxmr.fit_each")
-    free, static = _split_model(model)
     experiments = list(experiments)
     if not experiments:
         raise ValueError("`experiments` is empty: give at least one experiment.")
+    own_starts = None
+    if isinstance(model, (list, tuple)):
+        if len(model) != len(experiments):
+            raise ValueError(
+                f"`model` is a sequence of {len(model)} starts for "
+                f"{len(experiments)} experiments: give one per experiment (or one "
+                "model for all)."
+            )
+        own_starts = [_split_model(m) for m in model]
+        if len({jax.tree.structure(s) for _, s in own_starts}) != 1:
+            raise ValueError(
+                "the starting models in `model` must have one structure (the same "
+                "class, laws and Fixed parameters), differing only in values."
+            )
+        model = model[0]
+    free, static = _split_model(model)
     policy = as_step_policy(integrator)
     n = len(experiments)
     discards = np.broadcast_to(
@@ -289,22 +323,19 @@ def fit_each(
         dict(weighting=weighting, discard=float(d), smoothing=float(w), lanes=1)
         for d, w in zip(discards, widths)
     ]
-    problems = [pack([e], policy, **o) for e, o in zip(experiments, options)]
+    problems = [pack([e], policy, **o) for e, o in zip(experiments, options)]  # pyright: ignore[reportArgumentType]  # keywords of mixed types
     for problem in problems:
         _check_enough_data(free, problem, f"experiment {problem.names[0]!r}: ")
-    devices = jax.local_devices()
-    sharded = shard and len(devices) > 1
-    count = -(-n // len(devices)) * len(devices) if sharded else n
-    batched = stack(problems + [problems[-1]] * (count - n))
-    ys = jax.tree.map(lambda a: jnp.broadcast_to(a, (count,) + a.shape), free)
-    if sharded:
-        mesh = jax.sharding.Mesh(np.array(devices), ("batch",))
-        sharding = jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec("batch"))
-        ys = jax.device_put(ys, sharding)
-        batched = eqx.combine(
-            jax.device_put(eqx.filter(batched, eqx.is_array), sharding),
-            eqx.filter(batched, eqx.is_array, inverse=True),
-        )
+    mesh = batch_mesh() if shard else None
+    count = padded_size(n, mesh)
+    batched = spread(stack(problems + [problems[-1]] * (count - n)), mesh)
+    if own_starts is None:
+        ys = jax.tree.map(lambda a: jnp.broadcast_to(a, (count,) + a.shape), free)
+    else:
+        frees = [f for f, _ in own_starts]
+        frees += [frees[-1]] * (count - n)
+        ys = jax.tree.map(lambda *a: jnp.stack(a), *frees)
+    ys = spread(ys, mesh)
     if solver is None:
         solver = FastLevenbergMarquardt(rtol=rtol, atol=atol)
     scale = column_scale(residuals, free, static, problems[0], None)
@@ -325,17 +356,46 @@ def fit_each(
     if statistics_refinement > 1 and not outcomes[0].interrupted:
         refined = policy.refined(statistics_refinement)
         stats_data = pad_all(
-            [pack([e], refined, **o) for e, o in zip(experiments, options)]
+            [pack([e], refined, **o) for e, o in zip(experiments, options)]  # pyright: ignore[reportArgumentType]  # keywords of mixed types
         )
-    best = multiply(best_y, scale)
-    return [
-        _report(
-            jax.tree.map(lambda a, p=p: a[p], best),
-            static,
-            padded[p],
-            outcomes[p],
-            stats_data[p],
-            identifiability_threshold,
+    best = jax.tree.map(lambda a: a[:n], gather(multiply(best_y, scale)))
+    # One batched simulation and one batched Jacobian for every problem (a loop of
+    # `_report`s dispatched 2 calls per problem: 256 fits spent longer reporting than
+    # fitting).
+    simulated, r, jac = _batched_statistics(
+        best, static, stack(padded), stack(stats_data)
+    )
+    simulated, r = np.asarray(simulated), np.asarray(r)
+    jac = [np.reshape(np.asarray(j), r.shape[:2] + (-1,)) for j in jax.tree.leaves(jac)]
+    J = np.concatenate(jac, axis=2)
+    results = []
+    for p in range(n):
+        free_p = jax.tree.map(lambda a, p=p: a[p], best)
+        data = padded[p]
+        stats = statistics_from(r[p], J[p], free_p, static, sum(data.kept_counts))
+        results.append(
+            assemble(
+                free_p,
+                static,
+                data.split(simulated[p]),
+                data.split(np.asarray(data.force)),
+                data.split(data.kept_mask()),
+                data.names,
+                stats,
+                outcomes[p],
+                identifiability_threshold,
+            )
         )
-        for p in range(n)
-    ]
+    return results
+
+
+@eqx.filter_jit
+def _batched_statistics(free, static, data, stats_data):
+    """The simulated force on `data` and the residual with its Jacobian on
+    `stats_data`, for a batch of problems (axis 0)."""
+
+    def one(f, d, sd):
+        r, jac = value_and_jacobian(residuals, f, static, sd, None)
+        return simulate(eqx.combine(f, static), d), r, jac
+
+    return jax.vmap(one)(free, data, stats_data)

@@ -1,0 +1,68 @@
+"""Running a benchmark's measurement in N local processes with `jax.distributed`
+(CPU, gloo collectives, one device per process): the launcher and the worker's start.
+
+A benchmark script that supports `--processes N` re-runs itself as N workers
+(`--worker K --port P --out FILE`); process 0 saves its figures to FILE (.npz)."""
+
+import os
+import socket
+import subprocess
+import sys
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("localhost", 0))
+        return s.getsockname()[1]
+
+
+def launch(
+    script: str, processes: int, arguments: list[str], out, host_devices: int = 1
+) -> dict:
+    """Run `script` as `processes` workers (fresh processes: each pays its own
+    compilation), each with `host_devices` CPU devices, and return what process 0
+    saved."""
+    import numpy as np
+
+    port = str(free_port())
+    env = dict(os.environ)
+    env.pop("XLA_FLAGS", None)
+    if host_devices > 1:
+        env["XLA_FLAGS"] = f"--xla_force_host_platform_device_count={host_devices}"
+    workers = [
+        subprocess.Popen(
+            [
+                sys.executable,
+                script,
+                *arguments,
+                "--worker",
+                str(k),
+                "--processes",
+                str(processes),
+                "--port",
+                port,
+                "--out",
+                str(out),
+            ],
+            env=env,
+        )  # fmt: skip
+        for k in range(processes)
+    ]
+    codes = [w.wait() for w in workers]
+    if any(codes):
+        raise RuntimeError(f"a worker of the {processes}-process run failed: {codes}")
+    return dict(np.load(out))
+
+
+def initialize(processes: int, worker: int, port) -> None:
+    """The worker's start: float64, and `jax.distributed` when there are several."""
+    import jax
+
+    jax.config.update("jax_enable_x64", True)
+    if processes > 1:
+        jax.config.update("jax_cpu_collectives_implementation", "gloo")
+        jax.distributed.initialize(
+            coordinator_address=f"localhost:{port}",
+            num_processes=processes,
+            process_id=worker,
+        )

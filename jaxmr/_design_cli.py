@@ -1,0 +1,347 @@
+"""`jaxmr design`: plan the tests that identify a model best (`jaxmr.design_experiments`)
+and write them ready to drive a rig.
+
+Its own module (registered by `jaxmr._cli._parser`), with the command line's rules: a
+`CLIError` for what the user can fix, every file through a temporary file and a
+rename. Unlike the other commands it never replaces a file, not even on request: a plan
+is a record of what was decided, so an existing output is an error and nothing is
+written.
+"""
+
+import argparse
+import csv
+import dataclasses
+import math
+import re
+from pathlib import Path
+
+import numpy as np
+
+import jaxmr
+from jaxmr._cli import (
+    CLIError,
+    _load_model,
+    _prepare_directory,
+    _processing,
+    _read_experiments,
+    _same_file,
+    _write_atomically,
+    _write_text,
+)
+
+PLAN = "plan.csv"
+PLAN_COLUMNS = ("test", "file", "amplitude", "frequency", "current", "duration")
+
+
+def add_parser(subparsers) -> None:
+    """Register `jaxmr design` on the command line's subparsers."""
+    command = subparsers.add_parser(
+        "design",
+        help="choose the tests that identify a model best; write them as CSV files",
+        description=(
+            "Choose K tests from a menu (canonical CSV files of motions and inputs, "
+            "or a grid of sine tests) that identify MODEL's fitted parameters best: "
+            "D-optimal (largest log det of the Fisher information from the exact "
+            "Jacobian), or A-optimal for --parameters. Writes DIR/plan.csv (one row "
+            "per test: amplitude [m or rad], frequency [Hz], current [A or V], "
+            "duration [s]) and one canonical CSV per test (motion and input, no "
+            "force), ready to drive a rig. Never replaces an existing file."
+        ),
+    )
+    command.add_argument(
+        "model",
+        metavar="MODEL",
+        help="a parameter file: the JSON `jaxmr fit` writes (its report names the "
+        "fitted parameters, which are designed for), or a model saved by "
+        "jaxmr.save_model with its constraint wrappers (jaxmr.Fixed, Positive, ...)",
+    )
+    command.add_argument(
+        "-k", type=int, required=True, metavar="K", help="how many tests to choose"
+    )
+    command.add_argument("--out", required=True, metavar="DIR", help="output directory")
+    menu = command.add_argument_group(
+        "the menu: candidate files, or a grid of sine tests (every combination)"
+    )
+    menu.add_argument(
+        "--candidates",
+        nargs="+",
+        metavar="FILE",
+        help="canonical CSV files of candidate tests (a force column is not read)",
+    )
+    menu.add_argument(
+        "--amplitudes", nargs="+", type=float, metavar="A", help="[m] ([rad], --rotary)"
+    )
+    menu.add_argument("--frequencies", nargs="+", type=float, metavar="F", help="[Hz]")
+    menu.add_argument(
+        "--currents", nargs="+", type=float, metavar="I", help="[A] ([V], --voltage)"
+    )
+    menu.add_argument(
+        "--cycles", type=float, default=3.0, help="periods per sine test (default 3)"
+    )
+    menu.add_argument(
+        "--sample-rate",
+        type=float,
+        default=1000.0,
+        metavar="HZ",
+        help="the rig's sampling rate for sine tests (default 1000)",
+    )
+    menu.add_argument("--rotary", action="store_true", help="sine tests of a brake")
+    menu.add_argument(
+        "--voltage", action="store_true", help="the sine tests' input is a voltage"
+    )
+    command.add_argument(
+        "--already",
+        nargs="+",
+        metavar="FILE",
+        default=[],
+        help="canonical CSV files of tests already run: their information is "
+        "counted before choosing (sequential design)",
+    )
+    command.add_argument(
+        "--parameters",
+        nargs="+",
+        metavar="NAME",
+        help="A-optimal for these parameters (names as `jaxmr fit` reports them, "
+        "e.g. .alpha.b) instead of D-optimal for all",
+    )
+    command.add_argument(
+        "--weighting",
+        choices=("nrmse", "force"),
+        default="nrmse",
+        help="how the fit will weigh the tests, as `jaxmr fit` (default nrmse)",
+    )
+    command.add_argument(
+        "--noise",
+        type=float,
+        default=1.0,
+        help="the weighted residual's standard deviation (with --weighting force: "
+        "the force noise [N or N·m]); scales the predicted standard errors only",
+    )
+    command.add_argument(
+        "--discard",
+        default="file",
+        metavar="SECONDS",
+        help="the start of each test left out of the fit: a number, or 'file' "
+        "(default: each file's `# discard:` line; one period for a sine test)",
+    )
+    command.add_argument(
+        "--smoothing",
+        default="file",
+        metavar="SECONDS",
+        help="the moving average the force goes through: a number, or 'file' "
+        "(default: each file's `# smoothing:` line; none for a sine test)",
+    )
+    command.set_defaults(run=run)
+
+
+def _free_model(model, data: dict, path: str):
+    """The model with the wrappers a design needs: as saved if it has any, else the
+    parameters its fit report names free (`Positive` where positive), the rest
+    `Fixed`."""
+    import jax
+
+    from jaxmr._parameter import is_parameter
+
+    if any(is_parameter(x) for x in jax.tree.leaves(model, is_leaf=is_parameter)):
+        return model
+    report = data.get("parameters")
+    if not isinstance(report, list) or not report:
+        raise CLIError(
+            f"{path}: no fit report naming the fitted parameters and no constraint "
+            "wrappers: use the file `jaxmr fit` wrote, or save the model with its "
+            "wrappers (jaxmr.save_model(result.constrained, path))"
+        )
+    named = {str(entry.get("name")) for entry in report if isinstance(entry, dict)}
+
+    def wrap(key_path, leaf):
+        name = jax.tree_util.keystr(key_path)
+        value = np.asarray(leaf)
+        names = (
+            {name} if value.ndim == 0 else {f"{name}[{k}]" for k in range(value.size)}
+        )
+        if not names & named:
+            return jaxmr.Fixed(value)
+        return jaxmr.Positive(value) if np.all(value > 0) else leaf
+
+    return jax.tree_util.tree_map_with_path(wrap, model)
+
+
+def _file_name(name: str, taken: set) -> str:
+    stem = re.sub(r"[^A-Za-z0-9._-]+", "_", name).strip("._") or "test"
+    candidate, k = f"{stem}.csv", 2
+    while candidate.lower() in taken or candidate.lower() == PLAN:
+        candidate, k = f"{stem}_{k}.csv", k + 1
+    taken.add(candidate.lower())
+    return candidate
+
+
+def _menu(args):
+    """The candidates, their names for the output files, and their discard and
+    smoothing [s]."""
+    grid = (args.amplitudes, args.frequencies, args.currents)
+    if args.candidates and any(g is not None for g in grid):
+        raise CLIError("give either --candidates or a sine grid, not both")
+    if args.candidates:
+        tests = _read_experiments(args.candidates, need_force=False, why="")
+        discard = _processing(args.discard, args.candidates, "discard", "--discard")
+        smoothing = _processing(
+            args.smoothing, args.candidates, "smoothing", "--smoothing"
+        )
+        names = [Path(p).stem for p in args.candidates]
+        return tests, names, discard, smoothing
+    if any(g is None for g in grid):
+        raise CLIError(
+            "no menu: give --candidates FILE..., or --amplitudes, --frequencies and "
+            "--currents for a grid of sine tests"
+        )
+    for values, flag in zip(grid, ("--amplitudes", "--frequencies")):
+        if not all(math.isfinite(v) and v > 0 for v in values):
+            raise CLIError(f"{flag}: every value must be > 0")
+    if not (math.isfinite(args.cycles) and args.cycles > 0):
+        raise CLIError("--cycles must be > 0")
+    if not (math.isfinite(args.sample_rate) and args.sample_rate > 0):
+        raise CLIError("--sample-rate must be > 0 Hz")
+    tests = jaxmr.sine_grid(
+        args.amplitudes,
+        args.frequencies,
+        args.currents,
+        cycles=args.cycles,
+        sample_rate=args.sample_rate,
+        rotary=args.rotary,
+        drive="voltage" if args.voltage else "current",
+    )
+    periods = [
+        1.0 / f
+        for _ in args.amplitudes
+        for f in args.frequencies
+        for _ in args.currents
+    ]
+    discard = _option(args.discard, periods, "--discard")
+    smoothing = _option(args.smoothing, [0.0] * len(tests), "--smoothing")
+    return tests, [t.name for t in tests], discard, smoothing
+
+
+def _option(option: str, default: list, flag: str) -> list:
+    if option == "file":
+        return list(default)
+    try:
+        value = float(option)
+    except ValueError:
+        raise CLIError(f"{flag}: expected a number of seconds or 'file'") from None
+    if not (math.isfinite(value) and value >= 0):
+        raise CLIError(f"{flag}: must be a finite number >= 0 [s], got {option!r}")
+    return [value] * len(default)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run `jaxmr design` (see `add_parser`)."""
+    import jaxmr.data
+
+    model, data = _load_model(args.model)
+    model = _free_model(model, data, args.model)
+    tests, stems, discard, smoothing = _menu(args)
+    if not 1 <= args.k <= len(tests):
+        raise CLIError(f"-k must be from 1 to the number of candidates ({len(tests)})")
+    already = _read_experiments(args.already, need_force=False, why="")
+    kinds = {(t.rotary, t.drive) for t in list(tests) + already}
+    if len(kinds) > 1:
+        raise CLIError(
+            "the candidates and --already mix linear and rotary devices or current "
+            "and voltage inputs; give tests of one device"
+        )
+    already_discard = _processing(args.discard, args.already, "discard", "--discard")
+    already_smoothing = _processing(
+        args.smoothing, args.already, "smoothing", "--smoothing"
+    )
+
+    # Every output path is known before the design runs: check them first.
+    out = Path(args.out)
+    taken: set = set()
+    files = [_file_name(stem, taken) for stem in stems]
+    inputs = [args.model] + list(args.candidates or []) + list(args.already)
+    targets = [out / PLAN] + [out / f for f in files]
+    for target in targets:
+        for source in inputs:
+            if _same_file(target, source):
+                raise CLIError(
+                    f"{str(target)!r} would write over the input file {str(source)!r}: "
+                    "choose another --out"
+                )
+    _refuse_existing([out / PLAN])
+    _prepare_directory(out)
+
+    try:
+        design = jaxmr.design_experiments(
+            model,
+            tests,
+            args.k,
+            parameters=args.parameters,
+            already=already,
+            weighting=args.weighting,
+            noise=args.noise,
+            discard=list(discard) + list(already_discard),
+            smoothing=list(smoothing) + list(already_smoothing),
+        )
+    except (ValueError, TypeError) as e:
+        raise CLIError(str(e)) from e
+    print(design, flush=True)
+
+    chosen = [out / files[k] for k in design.indices]
+    _refuse_existing([out / PLAN] + chosen)
+    rows = design.plan_table()
+    _write_text(out / PLAN, lambda f: _write_plan(f, design, rows, chosen))
+    for k, path in zip(design.indices, chosen):
+        # The motion and input only: a measured candidate's force is not the plan's.
+        planned = dataclasses.replace(tests[k], force=None)
+        _write_atomically(
+            path,
+            lambda target, e=planned, d=discard[k], w=smoothing[k]: (
+                jaxmr.data.write_csv(
+                    e,
+                    target,
+                    comment="planned by jaxmr design",
+                    discard=d or None,
+                    smoothing=w or None,
+                )
+            ),
+        )
+    print(f"{len(chosen)} test(s) and {PLAN} in {out}")
+    return 0
+
+
+def _refuse_existing(paths) -> None:
+    existing = [p for p in paths if p.exists() or p.is_symlink()]
+    if existing:
+        listed = ", ".join(repr(str(p)) for p in existing[:3])
+        more = f" and {len(existing) - 3} more" if len(existing) > 3 else ""
+        raise CLIError(
+            f"{listed}{more} already exist{'s' if len(existing) == 1 else ''}: "
+            "`jaxmr design` never replaces a file; choose another --out (nothing "
+            "was written)"
+        )
+
+
+def _write_plan(f, design, rows, paths) -> None:
+    unit = "rad" if design.plan[0].rotary else "m"
+    current = "V" if getattr(design.plan[0], "drive", "current") == "voltage" else "A"
+    what = (
+        "D-optimal"
+        if design.criterion == "D"
+        else "A-optimal for " + " ".join(design.parameters)
+    )
+    f.write(
+        f"# jaxmr experiment plan: {what}, {len(rows)} of "
+        f"{len(design.candidate_names)} candidate tests\n"
+        f"# units: amplitude [{unit}] (half the peak-to-peak motion), frequency [Hz], "
+        f"current [{current}] (empty if it varies), duration [s]\n"
+    )
+    writer = csv.writer(f, lineterminator="\n")
+    writer.writerow(PLAN_COLUMNS)
+    for row, path in zip(rows, paths):
+        writer.writerow(
+            [row["name"], path.name]
+            + [
+                "" if not math.isfinite(row[key]) else f"{row[key]:.10g}"
+                for key in PLAN_COLUMNS[2:]
+            ]
+        )

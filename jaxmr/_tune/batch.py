@@ -1,0 +1,32 @@
+"""The batch a tuning loss runs over: roads (and damper samples), checked, and spread
+over every device of every process."""
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+
+from .._distribute import batch_mesh, pad, padded_size, spread
+
+ROADS_EXAMPLE = "`jax.vmap(lambda k: jaxmr.iso8608_road('C', 20.0, 10.0, k))(keys)`"
+
+
+def batch_size(tree, what: str, example: str) -> int:
+    """The one leading size of the arrays of a batch (clear error otherwise)."""
+    sizes = {x.shape[0] for x in jax.tree.leaves(tree) if eqx.is_array(x) and x.ndim}
+    if len(sizes) != 1:
+        raise ValueError(
+            f"`{what}` must be a batch with one leading axis (e.g. {example}), got "
+            f"leading sizes {sorted(sizes) or 'none'}."
+        )
+    return sizes.pop()
+
+
+def road_batch(roads):
+    """`(roads, valid)`: the roads spread over every device of every process, padded
+    to a whole number per device with copies of the last (`valid` False), which the
+    losses' means leave out (`loss.mean_or_inf`)."""
+    n = batch_size(roads, "roads", ROADS_EXAMPLE)
+    mesh = batch_mesh()
+    count = padded_size(n, mesh)
+    valid = jnp.arange(count) < n
+    return spread((pad(roads, n, count), valid), mesh)
