@@ -9,16 +9,13 @@ start 2–3x off (each parameter multiplied or divided by a factor in [2, 3]).
 
 Figures:
 
-- `seconds_256_fits`: the `fit_each` call in one process whose CPU cores are XLA
-  devices (the batch split over them), compilation included (goal <= 120 s on 2
-  cores), `seconds_256_fits_run` (the same call again, compiled), and
-  `seconds_256_fits_one_device` (one device: one core);
+- `seconds_256_fits`: the `fit_each` call in one process, compilation included (goal
+  <= 120 s on 2 cores), and `seconds_256_fits_run` (the same call again, compiled);
 - `fraction_recovered`: of the 256 x 5 fitted values, the fraction within 3 standard
   errors of the truth (goal >= 0.95): the standard errors are honest when it holds;
 - `two_process_over_one`: with `--processes 2`, the time of the call split over 2
   processes (`jax.distributed` on localhost, one CPU device each) over the time in 1
-  process with the same cores as devices (goal <= 1.15), and whether the fitted values
-  are equal.
+  process on the same cores (goal <= 1.15), and whether the fitted values are equal.
 
     python benchmarks/fit_each_scaling.py --json benchmarks/results/fit_each_scaling.json
     python benchmarks/fit_each_scaling.py --processes 2 --json OUT   # adds the 2-process run
@@ -150,6 +147,12 @@ def main():
     parser.add_argument("--json", type=Path, help="write the figures here")
     parser.add_argument("--records", type=int, default=256)
     parser.add_argument("--processes", type=int, default=1)
+    parser.add_argument(
+        "--host-devices",
+        type=int,
+        default=1,
+        help="XLA CPU devices of the one-process run (default 1)",
+    )
     parser.add_argument("--worker", type=int, help=argparse.SUPPRESS)
     parser.add_argument("--port", help=argparse.SUPPRESS)
     parser.add_argument("--out", help=argparse.SUPPRESS)
@@ -158,12 +161,12 @@ def main():
         return worker(args)
     import numpy as np
 
-    cores = os.cpu_count() or 1
     with tempfile.TemporaryDirectory() as folder:
-        # One process using every core (its cores as devices: `fit_each` splits the
-        # batch over them), and one process on one device for reference.
-        one = run(1, args.records, Path(folder), host_devices=cores)
-        single = run(1, args.records, Path(folder)) if cores > 1 else one
+        # One process on one XLA device (XLA's CPU client still spreads large batched
+        # operations over the cores: the run kept ~1.5 of 2 busy). Its cores as
+        # several devices (`--host-devices`) hung in the 256-record fit on this
+        # machine (2026-11-24; 8 records ran): see benchmarks/README.md.
+        one = run(1, args.records, Path(folder), host_devices=args.host_devices)
         figures = {
             "records": args.records,
             "parameters_per_record": len(NAMES),
@@ -172,10 +175,6 @@ def main():
             "host_devices": int(one["devices"]),
             "seconds_256_fits": float(one["seconds"][0]),
             "seconds_256_fits_run": float(one["seconds"][1]),
-            "seconds_256_fits_one_device": float(single["seconds"][0]),
-            "equal_results_one_device": bool(
-                np.array_equal(single["values"], one["values"])
-            ),
             "median_steps": float(np.median(one["steps"])),
             "fraction_recovered": float(np.mean(one["within"])),
             "fraction_recovered_per_parameter": dict(
@@ -203,7 +202,10 @@ def main():
                 np.array_equal(many["values"], one["values"])
             )
             figures["largest_relative_difference"] = float(
-                np.max(np.abs(many["values"] / one["values"] - 1))
+                np.max(
+                    np.abs(many["values"] - one["values"])
+                    / np.maximum(np.abs(one["values"]), 1e-300)
+                )
             )
     text = json.dumps(figures, indent=2)
     print(text)

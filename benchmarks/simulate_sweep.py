@@ -408,6 +408,7 @@ def process_comparison(args):
         "one_process": {
             "first_call_s": float(one["first_s"]),
             "run_s": float(one["run_s"]),
+            "devices": int(one["devices"]),
         },  # fmt: skip
         f"{n}_processes": {
             "first_call_s": float(many["first_s"]),

@@ -135,6 +135,7 @@ def simulate_system(
     delay: int = 1,
     initial_state: Float[Array, " states"] | None = None,
     throw: bool = True,
+    unroll: int = 1,
 ) -> SystemSolution:
     r"""Simulate a system with its damper under a digital controller.
 
@@ -161,6 +162,12 @@ def simulate_system(
     - `initial_state`: the system's state at $t = 0$ (default: its rest state); the
       damper starts virgin, its current dynamics in steady state at the first command.
     - `throw`: raise on failure (default); `False` returns the code in `result`.
+    - `unroll`: substeps unrolled in the compiled loop (default 1). Unrolled, XLA
+      fuses across substeps and the reverse pass loses a nested loop: `jaxmr.tune`'s
+      gradient ran 1.5-2x faster with 4 (12 roads, 2 cores). The forward pass gains
+      nothing and can lose much: the Bouc–Wen benchmark oscillator's residual (20
+      substeps, a long sampled excitation) ran 10x slower with 8, its forward-mode
+      Jacobian 2.6x, and compiling took 3-6x longer.
 
     **Returns:** a `SystemSolution`.
     """
@@ -174,6 +181,8 @@ def simulate_system(
     controller = _as_controller(controller)
     excitation = _check_arguments(system, excitation, duration, dt, substeps, delay)
     _excitation_checks(excitation, dt, duration)
+    if not isinstance(unroll, int) or not 1 <= unroll:
+        raise ValueError(f"`unroll` must be a positive integer, got {unroll!r}.")
     return _simulate_system(
         system,
         excitation,
@@ -184,12 +193,22 @@ def simulate_system(
         delay,
         initial_state,
         throw,
+        min(unroll, substeps),
     )
 
 
 @eqx.filter_jit
 def _simulate_system(
-    system, excitation, controller, duration, dt, substeps, delay, initial_state, throw
+    system,
+    excitation,
+    controller,
+    duration,
+    dt,
+    substeps,
+    delay,
+    initial_state,
+    throw,
+    unroll=1,
 ) -> SystemSolution:
     samples = int(round(duration / dt))
     damper = system.damper
@@ -254,11 +273,7 @@ def _simulate_system(
             substeps,
             lambda j, y: rk4_step(vector_field, t + j * h, y, h, applied),
             y,
-            # Unrolled, XLA fuses across the substeps and the reverse pass (of the
-            # rematerialised sample) loses a nested loop: tuning's gradient ran
-            # 1.5-2x faster (12 roads, 2 cores), the forward pass the same, for
-            # twice the compile time; past 8 substeps the compile time is not worth it.
-            unroll=min(substeps, 8),
+            unroll=unroll,  # see `simulate_system`
         )
         _, s = split(y)
         record = (

@@ -282,7 +282,7 @@ def _parameters(material: str, params) -> dict[str, float]:
 
 
 def from_opensees(
-    material: str, params: Mapping[str, float] | Sequence[float]
+    material: str, params: Mapping[str, float] | Sequence[float | int]
 ) -> BoucWen | BoucWenBaberNoori:
     r"""The jaxmr model of an OpenSees `BoucWen` or `BWBN` uniaxial material.
 

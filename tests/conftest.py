@@ -41,18 +41,27 @@ def pytest_unconfigure(config):
         shutil.rmtree(os.environ["JAX_COMPILATION_CACHE_DIR"], ignore_errors=True)
 
 
-# Longest first: the notebooks take minutes each, so under `pytest -n 2` they start at
-# once on the two workers and the short tests fill in around them (collected last,
-# the 3-minute identification notebook made one worker run on alone at the end).
-_SLOW_FIRST = ("02_", "04_", "01_", "03_", "05_")
+# Longest first (about a minute or more each), so that under `pytest -n 2` they start
+# early and the short tests fill in around them; with `--maxschedchunk=2`
+# (pyproject.toml) xdist hands tests out two at a time, so the long ones alternate
+# between the workers instead of all landing in the first worker's initial chunk.
+_SLOW_FIRST = (
+    "test_two_processes_equal_one",
+    "02_",
+    "06_",
+    "04_",
+    "07_",
+    "05_",
+    "01_",
+    "03_",
+    "test_brake_parameters_identified_from_a_free_decay",
+)
 
 
 def pytest_collection_modifyitems(config, items):
     def rank(item):
-        if "test_notebooks" not in item.nodeid:
-            return len(_SLOW_FIRST) + 1
-        for k, prefix in enumerate(_SLOW_FIRST):
-            if prefix in item.nodeid:
+        for k, part in enumerate(_SLOW_FIRST):
+            if part in item.nodeid:
                 return k
         return len(_SLOW_FIRST)
 

@@ -277,7 +277,8 @@ def fit_each(
     the longest (padding adds no residual). With several devices and `shard=True`
     the batch is split across them with `jax.sharding` (a 1-D mesh of
     `jax.devices()`), padded with copies of its last problem to a multiple of the
-    device count and trimmed after.
+    device count and trimmed after; not over several CPU devices of one process,
+    where a large batch hung (use processes: one CPU device each).
 
     Several processes (hosts, or one process per GPU): start each with
     `jax.distributed.initialize()` and make the same call with the same experiments
@@ -327,6 +328,13 @@ def fit_each(
     for problem in problems:
         _check_enough_data(free, problem, f"experiment {problem.names[0]!r}: ")
     mesh = batch_mesh() if shard else None
+    if mesh is not None and jax.process_count() == 1:
+        if all(d.platform == "cpu" for d in mesh.devices.flat):
+            # Several CPU devices of one process (XLA_FLAGS host devices): 256 brake
+            # fits split over 2 of them hung in the LM step with the CPU idle
+            # (2026-11-24; 8 ran), while the same batch over 2 processes ran
+            # (benchmarks/fit_each_scaling.py). One CPU device per process is safe.
+            mesh = None
     count = padded_size(n, mesh)
     batched = spread(stack(problems + [problems[-1]] * (count - n)), mesh)
     if own_starts is None:
