@@ -33,14 +33,13 @@ import tempfile
 import time
 from pathlib import Path
 
-# As `jaxmr fit` does: every CPU core an XLA device (up to 8), so that a fit splits its
-# lanes over them. Set before JAX is imported; a device count of your own is kept.
-if "xla_force_host_platform_device_count" not in os.environ.get("XLA_FLAGS", ""):
-    cores = min(os.cpu_count() or 1, 8)
-    flags = os.environ.get("XLA_FLAGS", "")
-    os.environ["XLA_FLAGS"] = f"{flags} --xla_force_host_platform_device_count={cores}"
+from jaxmr._cli import _cores_as_devices  # imports no JAX
 
-import jax
+# As `jaxmr fit` does: every CPU core an XLA device (up to 8), so that a fit splits its
+# lanes over them. Before JAX is imported; a device count of your own is kept.
+_cores_as_devices()
+
+import jax  # noqa: E402
 
 jax.config.update("jax_enable_x64", True)
 
