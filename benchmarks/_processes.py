@@ -5,6 +5,7 @@ A benchmark script that supports `--processes N` re-runs itself as N workers
 (`--worker K --port P --out FILE`); process 0 saves its figures to FILE (.npz)."""
 
 import os
+import re
 import socket
 import subprocess
 import sys
@@ -26,9 +27,12 @@ def launch(
 
     port = str(free_port())
     env = dict(os.environ)
-    env.pop("XLA_FLAGS", None)
+    # jaxmr.configure_cpu's loop setting, and `host_devices` CPU devices.
+    env["XLA_FLAGS"] = re.sub(
+        r"--xla_force_host_platform_device_count=\d+", "", env.get("XLA_FLAGS", "")
+    )
     if host_devices > 1:
-        env["XLA_FLAGS"] = f"--xla_force_host_platform_device_count={host_devices}"
+        env["XLA_FLAGS"] += f" --xla_force_host_platform_device_count={host_devices}"
     workers = [
         subprocess.Popen(
             [

@@ -24,7 +24,6 @@ Every run is a fresh process (`--worker`), so each pays its own compilation.
 """
 
 import argparse
-import json
 import os
 import platform
 import sys
@@ -36,6 +35,7 @@ from types import SimpleNamespace
 HERE = Path(__file__).resolve()
 sys.path.insert(0, str(HERE.parents[1]))  # the repository's jaxmr
 from _processes import initialize, launch  # noqa: E402
+from _report import write_figures  # noqa: E402
 
 NAMES = ("alpha", "c0", "beta", "gamma", "n")
 
@@ -207,11 +207,7 @@ def main():
                     / np.maximum(np.abs(one["values"]), 1e-300)
                 )
             )
-    text = json.dumps(figures, indent=2)
-    print(text)
-    if args.json:
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(text)
+    write_figures(figures, args.json)
 
 
 if __name__ == "__main__":

@@ -33,11 +33,13 @@ import tempfile
 import time
 from pathlib import Path
 
-from jaxmr._cli import _cores_as_devices  # imports no JAX
+from _report import write_figures
+
+import jaxmr
 
 # As `jaxmr fit` does: every CPU core an XLA device (up to 8), so that a fit splits its
-# lanes over them. Before JAX is imported; a device count of your own is kept.
-_cores_as_devices()
+# lanes over them, and each simulation loop one kernel. Flags of your own are kept.
+jaxmr.configure_cpu()
 
 import jax  # noqa: E402
 
@@ -46,7 +48,6 @@ jax.config.update("jax_enable_x64", True)
 import equinox as eqx  # noqa: E402
 import numpy as np  # noqa: E402
 
-import jaxmr  # noqa: E402
 import jaxmr.data as jd  # noqa: E402
 from jaxmr._identify.data import pack  # noqa: E402
 from jaxmr._identify.residual import (  # noqa: E402
@@ -223,11 +224,7 @@ def main():
     if "nees" in sections:
         figures.update(nees())
     figures["speedup_vs_scipy_fd"] = None  # not measured yet (see benchmarks/README)
-    text = json.dumps(figures, indent=2, default=float)
-    print(text)
-    if args.json:
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(text)
+    write_figures(figures, args.json)
 
 
 if __name__ == "__main__":

@@ -46,6 +46,7 @@ if TYPE_CHECKING:
         solve_riccati as solve_riccati,
         with_temperature as with_temperature,
     )
+    from ._cpu import configure_cpu as configure_cpu
     from ._current_dynamics import (
         AbstractCurrentDynamics as AbstractCurrentDynamics,
         FirstOrderLag as FirstOrderLag,

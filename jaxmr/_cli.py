@@ -81,8 +81,13 @@ def main(argv: Sequence[str | os.PathLike] | None = None) -> int:
         # Only now, with a command to run: JAX takes seconds to import. jaxmr never
         # changes JAX's configuration on import; the command line is an application
         # and wants the accuracy of double precision (Adaptive's rtol 1e-8).
-        if args.command == "fit":
-            _cores_as_devices()
+        # Simulation loops compiled as one kernel each; for `fit`, every core an XLA
+        # device, over which it splits its lanes. Only as the program: `main()`
+        # called from Python, after JAX, leaves its caller's settings alone.
+        if "jax" not in sys.modules:
+            from ._cpu import configure_cpu
+
+            configure_cpu(devices=None if args.command == "fit" else 1)
         import jax
 
         jax.config.update("jax_enable_x64", True)
@@ -100,20 +105,6 @@ def main(argv: Sequence[str | os.PathLike] | None = None) -> int:
             # The program ends here: a Ctrl-C in JAX's clean-up at exit would only
             # print a traceback.
             signal.signal(signal.SIGINT, signal.SIG_IGN)
-
-
-def _cores_as_devices() -> None:
-    """Every CPU core an XLA device (up to 8), so that a fit splits its lanes over
-    them: XLA runs one device's scan on one core. Only when JAX is not yet imported
-    (the flag is read then) and the user set no device count of their own; GPUs are
-    unaffected (the flag is the CPU platform's)."""
-    flags = os.environ.get("XLA_FLAGS", "")
-    if "jax" in sys.modules or "xla_force_host_platform_device_count" in flags:
-        return
-    cores = min(os.cpu_count() or 1, 8)
-    if cores > 1:
-        count = f"--xla_force_host_platform_device_count={cores}"
-        os.environ["XLA_FLAGS"] = f"{flags} {count}".strip()
 
 
 class _Warnings(list):

@@ -27,8 +27,8 @@ def test_two_processes_equal_one(tmp_path):
     out = tmp_path / "two.npz"
     port = str(_free_port())
     env = dict(os.environ, PYTHONPATH=str(HERE.parent))
-    # Each process sees one CPU device (as one process per GPU would).
-    env.pop("XLA_FLAGS", None)
+    # Each process sees one CPU device (as one process per GPU would): the session's
+    # flags (conftest: jaxmr.configure_cpu) set no device count.
     workers = [
         subprocess.Popen(
             [
@@ -63,10 +63,10 @@ def test_a_fit_splits_its_lanes_over_devices_with_one_device_s_results(tmp_path)
     # `jaxmr fit` makes every core a device; the packed lanes then scan side by
     # side on them. Same program per lane, so the same numbers exactly.
     out = tmp_path / "lanes.npz"
-    env = dict(
-        os.environ,
-        PYTHONPATH=str(HERE.parent),
-        XLA_FLAGS="--xla_force_host_platform_device_count=2",
+    env = dict(os.environ, PYTHONPATH=str(HERE.parent))
+    # The session's flags (conftest: jaxmr.configure_cpu) and 2 CPU devices.
+    env["XLA_FLAGS"] = (
+        env.get("XLA_FLAGS", "") + " --xla_force_host_platform_device_count=2"
     )
     subprocess.run(
         [sys.executable, str(HERE / "distributed_worker.py"), "lanes", str(out)],

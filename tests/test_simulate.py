@@ -205,7 +205,11 @@ def test_sweep_shards_over_several_devices():
         print("sharded ok")
         """
     )
-    env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=2")
+    env = dict(os.environ)
+    # The session's flags (conftest: jaxmr.configure_cpu) and 2 CPU devices.
+    env["XLA_FLAGS"] = (
+        env.get("XLA_FLAGS", "") + " --xla_force_host_platform_device_count=2"
+    )
     env["JAX_PLATFORMS"] = "cpu"
     out = subprocess.run(
         [sys.executable, "-c", code],

@@ -1,0 +1,94 @@
+"""`configure_cpu`: the XLA settings that suit jaxmr's simulations on a CPU.
+
+Both are XLA flags (`XLA_FLAGS`), read once, when JAX starts its CPU backend (its first
+computation or `jax.devices()`), so they are set by a call the user makes first, never
+on import:
+
+- **One kernel per simulation loop.** XLA's CPU runtime executes a program as a
+  sequence of "thunks", one call per fused kernel, and a while loop as one such
+  sequence per iteration. A loop whose body touches at most
+  `xla_cpu_small_while_loop_byte_threshold` bytes (an XLA CPU backend option, default
+  1024) is compiled into a single kernel instead. An RK4 step of a damper is a few
+  hundred scalar operations, so the per-kernel overhead decides its cost: a forward-mode
+  Jacobian carries p tangents through the step, its body crosses 1024 bytes and falls
+  back to thunks. With 100 kB the Bouc–Wen benchmark oscillator's Jacobian (6
+  parameters, 819 200 RK4 steps) took 0.18 s instead of 1.02 s and the 30-record
+  UTFSM fit's (14 parameters, 8 lanes) 0.71 s instead of 1.49 s
+  (`benchmarks/cpu_flags.py`). Bodies above 100 kB (a sweep of hundreds of runs in
+  one loop) keep the thunks, which can split large kernels over threads.
+- **Every core a device** (`xla_force_host_platform_device_count`): XLA runs one
+  device's loop on one core, and `fit` splits its lanes, `sweep` its batch, over the
+  devices.
+"""
+
+import os
+import re
+
+# Per-iteration bytes below which a while loop becomes one compiled kernel.
+SMALL_LOOP_BYTES = 100_000
+_SMALL_LOOP_OPTION = "xla_cpu_small_while_loop_byte_threshold"
+_DEVICE_COUNT = "xla_force_host_platform_device_count"
+_EXTRA_OPTIONS = "xla_backend_extra_options"
+
+
+def configure_cpu(devices: int | None = None) -> str:
+    """Set the XLA flags under which jaxmr runs fastest on a CPU; call it first.
+
+    Two settings (details in the module docstring): a simulation loop is compiled
+    into one kernel (its forward-mode Jacobian ran 2-5x faster), and `devices` CPU
+    cores become XLA devices, over which `fit` splits its lanes and `sweep`,
+    `fit_each` and `evaluate` their batches. A flag the user has set in `XLA_FLAGS`
+    is kept as it is. GPUs are unaffected.
+
+    XLA reads its flags when JAX starts its CPU backend: call this before any JAX
+    computation (`import jaxmr` does not start it), e.g. on the first line of a
+    script or notebook. The `jaxmr` command line calls it itself.
+
+    **Arguments:**
+
+    - `devices`: how many XLA CPU devices to make; `None` (default): one per core, at
+      most 8; `1`: leave the device count alone (a single device).
+
+    **Returns:** the `XLA_FLAGS` now set.
+
+    **Raises:** `RuntimeError` when JAX's CPU backend had already started with another
+    device count (the flags came too late: restart the interpreter or kernel and call
+    this first); `ValueError` for a `devices` below 1.
+    """
+    if devices is None:
+        devices = min(os.cpu_count() or 1, 8)
+    if not isinstance(devices, int) or isinstance(devices, bool) or devices < 1:
+        raise ValueError(f"`devices` must be a positive integer, got {devices!r}.")
+    flags = os.environ.get("XLA_FLAGS", "")
+    added = []
+    if _EXTRA_OPTIONS not in flags:
+        added.append(f"--{_EXTRA_OPTIONS}={_SMALL_LOOP_OPTION}={SMALL_LOOP_BYTES}")
+    count = _flag_value(flags, _DEVICE_COUNT)
+    if count is None and devices > 1:
+        added.append(f"--{_DEVICE_COUNT}={devices}")
+        count = devices
+    before = os.environ.get("XLA_FLAGS")
+    flags = " ".join([flags, *added]).strip()
+    os.environ["XLA_FLAGS"] = flags
+    if count is not None and count > 1:
+        import jax
+
+        found = len(jax.devices("cpu"))
+        if found != count:
+            # Not left behind for the subprocesses this one may start.
+            if before is None:
+                del os.environ["XLA_FLAGS"]
+            else:
+                os.environ["XLA_FLAGS"] = before
+            raise RuntimeError(
+                f"jaxmr.configure_cpu: JAX's CPU backend had already started (with "
+                f"{found} device(s)), so XLA_FLAGS came too late; restart the "
+                "interpreter or kernel and call configure_cpu() before any JAX "
+                "computation."
+            )
+    return flags
+
+
+def _flag_value(flags: str, name: str) -> int | None:
+    match = re.search(rf"--{name}=(\d+)", flags)
+    return None if match is None else int(match.group(1))
