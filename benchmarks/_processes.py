@@ -26,8 +26,12 @@ def launch(
     import numpy as np
 
     port = str(free_port())
+    import jaxmr
+
+    # Each worker as users are advised to run (each simulation loop one kernel),
+    # with `host_devices` CPU devices.
+    jaxmr.configure_cpu(devices=1)
     env = dict(os.environ)
-    # jaxmr.configure_cpu's loop setting, and `host_devices` CPU devices.
     env["XLA_FLAGS"] = re.sub(
         r"--xla_force_host_platform_device_count=\d+", "", env.get("XLA_FLAGS", "")
     )

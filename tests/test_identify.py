@@ -143,6 +143,12 @@ def test_eight_brake_parameters_flagged_as_not_identified(synthetic):
     for name in (".A", ".alpha.a", ".alpha.b", ".beta", ".gamma"):
         assert name in message
     assert not result.converged
+    # A direction the data do not see has no finite variance: each parameter moving
+    # along it has an infinite standard error (the pseudo-inverse gave about 0, as if
+    # it were exact), and the report says so.
+    errors = dict(zip(result.names, result.std_errors))
+    assert all(np.isinf(errors[n]) for n in (".A", ".beta", ".gamma")), errors
+    assert any("no finite standard error" in m for m in result.poorly_determined)
 
 
 def test_fit_each_fits_independent_runs_in_one_batch():

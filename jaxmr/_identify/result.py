@@ -226,7 +226,14 @@ def poorly_determined(values, std, corr, names) -> list[str]:
     messages = []
     for name, value, se in zip(names, values, std):
         relative = abs(se / value) if value != 0 else np.inf
-        if relative > MAX_RELATIVE_ERROR:
+        if not np.isfinite(se):
+            messages.append(
+                f"poorly determined: {name} = {value:.4g} has no finite standard "
+                "error: the data do not see a direction it moves along (with another "
+                "parameter, or alone); fix it (jaxmr.Fixed) or add experiments that "
+                "excite it."
+            )
+        elif relative > MAX_RELATIVE_ERROR:
             messages.append(
                 f"poorly determined: {name} = {value:.4g} ± {se:.3g} (relative "
                 f"standard error {relative:.0%}); the data barely constrain it: fix it "
@@ -282,12 +289,22 @@ def statistics_from(r, J_raw, free, static, n_obs: int):
         return values, nan, np.full((p, p), np.nan), nan, np.eye(p), s2
     _, sv, Vt = np.linalg.svd(Js, full_matrices=False)
     rcond = 1e-10
-    inv_s2 = np.where(sv > rcond * sv[0], 1.0 / np.where(sv > 0, sv, 1.0) ** 2, 0.0)
+    unseen = sv <= rcond * sv[0]
+    inv_s2 = np.where(unseen, 0.0, 1.0 / np.where(sv > 0, sv, 1.0) ** 2)
     cov_scaled = (Vt.T * inv_s2) @ Vt * s2
     cov = cov_scaled * scale[:, None] * scale[None, :]
     std = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    # A direction the data do not see (singular value below rcond × the largest) has
+    # no finite variance; the pseudo-inverse would give it none at all, so that a
+    # parameter moving along it looked exact (standard error 0). Such a parameter's
+    # standard error is infinite, its correlations undefined.
+    free_along = np.sum(Vt[unseen] ** 2, axis=0) > 1e-6
+    std = np.where(free_along, np.inf, std)
     with np.errstate(invalid="ignore", divide="ignore"):
         corr = cov / np.outer(std, std)
+    corr[free_along, :] = np.nan
+    corr[:, free_along] = np.nan
+    np.fill_diagonal(corr, 1.0)
     return values, std, corr, sv, Vt, s2
 
 
