@@ -47,20 +47,6 @@ def _schedule(temperature, controller, steps: int) -> np.ndarray | None:
     return None if temperature == 0 else np.full(steps, temperature)
 
 
-# A gradient component beyond this many times the RMS of its own history (Adam's
-# second moment) is clipped to it before it enters the moments. Near a hard law the
-# relaxed loss has steep spots: a single gradient 100x the usual inflated Adam's
-# second moment, whose slow decay (beta2 = 0.999) then froze the parameter for the rest
-# of the run (skyhook, annealed to T = 0.04, stopped 11 % short of the grid's best).
-SPIKE_CLIP = 3.0
-
-
-def _clip_spikes(g, second_moment, beta2, steps):
-    rms = jnp.sqrt(second_moment / (1 - beta2**steps))
-    # A component with no history yet (its gradient was 0 so far) passes as it is.
-    return jnp.where(rms > 0, jnp.clip(g, -SPIKE_CLIP * rms, SPIKE_CLIP * rms), g)
-
-
 def tune(
     system: AbstractSystem,
     controller: AbstractController,
@@ -90,9 +76,7 @@ def tune(
     the parameters `parameters` selects, with Adam and exact reverse-mode gradients
     through the whole loop (the roads run together under `vmap`, each differentiated
     on its own so that a diverged road drops out of the gradient instead of turning
-    it into NaN). A gradient component beyond 3x the RMS of its own history is
-    clipped to it first, so that one steep spot of a nearly hard relaxation does not
-    freeze the step size for the rest of the run.
+    it into NaN).
 
     A semi-active law switches and clips, so its hard loss is flat or rippled in its
     gains: gradients are taken of its smooth relaxation (`temperature` > 0, see
@@ -204,8 +188,6 @@ def tune(
             if k - best_step >= patience:
                 reason = f"stalled: no improvement in {patience} steps"
                 break
-            if k > 0:
-                grads = tuple(_clip_spikes(g, b, beta2, k) for g, b in zip(grads, s))
             m = tuple(beta1 * a + (1 - beta1) * g for a, g in zip(m, grads))
             s = tuple(beta2 * a + (1 - beta2) * g**2 for a, g in zip(s, grads))
             t = k + 1
