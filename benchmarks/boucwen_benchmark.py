@@ -247,8 +247,10 @@ def run_fit(start, record, substeps, solver):
     }
 
 
-def run_scipy(start, record, substeps, max_nfev):
-    """scipy least_squares (trf, 2-point differences) on the same jitted residual."""
+def flat_residual(start, record, substeps):
+    """`fit_system`'s residual of `record` as a function of the free parameters as
+    one flat vector (the layout finite differences need), and their start values:
+    (residual, x0, treedef, static)."""
     from jaxmr._closed_loop import _as_controller
     from jaxmr._identify.system import _Simulation, _stack_records
     from jaxmr._parameter import free_filter, unwrap
@@ -264,12 +266,20 @@ def run_scipy(start, record, substeps, max_nfev):
         delay=1,
     )
 
-    @jax.jit
     def residual(flat):
         f = jax.tree.unflatten(treedef, list(flat))
         return _system_residuals(f, static, data, sim)
 
     x0 = np.array([float(v) for v in leaves])
+    return residual, x0, treedef, static
+
+
+def run_scipy(start, record, substeps, max_nfev):
+    """scipy least_squares (trf, 2-point differences) on the same jitted residual."""
+    from jaxmr._parameter import unwrap
+
+    residual, x0, treedef, static = flat_residual(start, record, substeps)
+    residual = jax.jit(residual)
     t0 = time.perf_counter()
     residual(jnp.asarray(x0)).block_until_ready()
     compile_s = time.perf_counter() - t0

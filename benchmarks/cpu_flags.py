@@ -89,18 +89,10 @@ def utfsm():
 
 def boucwen():
     import boucwen_benchmark as bw
-    import equinox as eqx
     import jax
     import jax.numpy as jnp
 
-    from jaxmr._closed_loop import _as_controller
-    from jaxmr._identify.system import (
-        SystemRecord,
-        _Simulation,
-        _stack_records,
-        _system_residuals,
-    )
-    from jaxmr._parameter import free_filter, unwrap
+    from jaxmr._identify.system import SystemRecord
     from jaxmr.data import load_boucwen_benchmark_train
 
     train = load_boucwen_benchmark_train(SHARED / "boucwen_benchmark" / "train.h5")
@@ -108,23 +100,8 @@ def boucwen():
     signal = bw.excitation(train.u[: bw.PERIOD], "multisine", 20, 5)
     record = SystemRecord(train.t[:n], train.y[:n], signal)
     start = bw.start_system(*bw.linear_fit(train.u, train.y))
-    free, static = eqx.partition(start, free_filter(start))
-    data = _stack_records([record], start, None, None)
-    sim = _Simulation(
-        controller=_as_controller(0.0),
-        reference=unwrap(start),
-        output="body_position",
-        substeps=20,
-        delay=1,
-    )
-    leaves, treedef = jax.tree.flatten(free)
-    x0 = jnp.asarray([float(v) for v in leaves])
-
-    def residual(x):
-        return _system_residuals(
-            jax.tree.unflatten(treedef, list(x)), static, data, sim
-        )
-
+    residual, x0, _, _ = bw.flat_residual(start, record, substeps=20)
+    x0 = jnp.asarray(x0)
     residual_jit = jax.jit(residual)
     jacobian_jit = jax.jit(jax.jacfwd(residual))
     return _pair(lambda: residual_jit(x0), lambda: jacobian_jit(x0))
