@@ -42,7 +42,13 @@ from ..data._experiment import Experiment
 from .data import StepPolicy, _per_experiment, as_step_policy, pack, pad_all
 from .fitting import _split_model
 from .residual import DIVERGED, residuals
-from .result import FitResult, _parameter_names, _values_and_scale, jacobian_matrix
+from .result import (
+    FitResult,
+    _parameter_names,
+    _values_and_scale,
+    covariance,
+    jacobian_matrix,
+)
 
 # Added to the information (in coordinates where all candidates together have unit
 # diagonal) while choosing: a plan that does not yet determine every parameter still
@@ -52,10 +58,9 @@ from .result import FitResult, _parameter_names, _values_and_scale, jacobian_mat
 RIDGE = 1e-9
 # Directions of a plan's information below this fraction of its largest eigenvalue
 # (unit-diagonal coordinates; 1e-6 in singular values of the Jacobian) are not
-# determined: the parameters with a weight above NULL_WEIGHT in them get an infinite
-# standard error.
+# determined: the parameters with a weight above `result.NULL_WEIGHT` in them get an
+# infinite standard error (`result.covariance`).
 RCOND = 1e-12
-NULL_WEIGHT = 0.03
 # An exchange must improve the criterion by more than this (relative, at least 1e-9
 # absolute), so that rounding cannot make the exchanges cycle.
 TOLERANCE = 1e-9
@@ -341,11 +346,8 @@ def _std_errors(M, value_scale) -> np.ndarray:
     coordinates (infinite for those in a direction `M` does not determine)."""
     d = np.sqrt(np.diag(M))
     d = np.where(d > 0, d, 1.0)
-    w, V = np.linalg.eigh(M / np.outer(d, d))
-    determined = w > RCOND * max(float(w[-1]), 0.0)
-    cov = (V[:, determined] / w[determined]) @ V[:, determined].T
+    cov, loose = covariance(*np.linalg.eigh(M / np.outer(d, d)), RCOND)
     se = np.sqrt(np.maximum(np.diag(cov), 0.0)) / d
-    loose = np.any(np.abs(V[:, ~determined]) > NULL_WEIGHT, axis=1)
     se = np.where(loose | (np.sqrt(np.diag(M)) == 0), math.inf, se)
     return se * np.abs(value_scale)
 

@@ -275,6 +275,29 @@ def statistics(residuals_fn, free, static, data, extra, n_obs: int):
     return statistics_from(r, J_raw, free, static, n_obs)
 
 
+# A parameter whose weight in an undetermined direction exceeds this moves along it.
+NULL_WEIGHT = 0.03
+
+
+def covariance(eigenvalues, vectors, rcond: float):
+    """The covariance (up to the noise variance) from the eigen-decomposition of an
+    information matrix JᵀJ (`eigenvalues`, `vectors` as columns; the squared singular
+    values and right singular vectors of J serve), and which parameters are loose.
+
+    Directions with an eigenvalue at most `rcond` × the largest are not determined by
+    the data. The pseudo-inverse gives them no variance at all, so that a parameter
+    moving along one would look exact; such a parameter (weight above `NULL_WEIGHT`)
+    is `loose`: its variance is infinite and the caller reports it so. Shared by the
+    fit's report and the experiment design's predicted standard errors.
+    """
+    w = np.asarray(eigenvalues, dtype=float)
+    determined = w > rcond * max(float(np.max(w)), 0.0)
+    inverse = np.where(determined, 1.0 / np.where(determined, w, 1.0), 0.0)
+    cov = (vectors * inverse) @ vectors.T
+    loose = np.any(np.abs(vectors[:, ~determined]) > NULL_WEIGHT, axis=1)
+    return cov, loose
+
+
 def statistics_from(r, J_raw, free, static, n_obs: int):
     """`statistics` from the residual and its Jacobian (`jacobian_matrix`'s layout)."""
     values, dvalue = _values_and_scale(free, static)
@@ -288,22 +311,14 @@ def statistics_from(r, J_raw, free, static, n_obs: int):
         nan = np.full(p, np.nan)
         return values, nan, np.full((p, p), np.nan), nan, np.eye(p), s2
     _, sv, Vt = np.linalg.svd(Js, full_matrices=False)
-    rcond = 1e-10
-    unseen = sv <= rcond * sv[0]
-    inv_s2 = np.where(unseen, 0.0, 1.0 / np.where(sv > 0, sv, 1.0) ** 2)
-    cov_scaled = (Vt.T * inv_s2) @ Vt * s2
-    cov = cov_scaled * scale[:, None] * scale[None, :]
-    std = np.sqrt(np.maximum(np.diag(cov), 0.0))
-    # A direction the data do not see (singular value below rcond × the largest) has
-    # no finite variance; the pseudo-inverse would give it none at all, so that a
-    # parameter moving along it looked exact (standard error 0). Such a parameter's
-    # standard error is infinite, its correlations undefined.
-    free_along = np.sum(Vt[unseen] ** 2, axis=0) > 1e-6
-    std = np.where(free_along, np.inf, std)
+    # Undetermined: a singular value at most 1e-10 of the largest (eigenvalue 1e-20).
+    cov_scaled, loose = covariance(sv**2, Vt.T, 1e-20)
+    cov = cov_scaled * s2 * scale[:, None] * scale[None, :]
+    std = np.where(loose, np.inf, np.sqrt(np.maximum(np.diag(cov), 0.0)))
     with np.errstate(invalid="ignore", divide="ignore"):
         corr = cov / np.outer(std, std)
-    corr[free_along, :] = np.nan
-    corr[:, free_along] = np.nan
+    corr[loose, :] = np.nan
+    corr[:, loose] = np.nan
     np.fill_diagonal(corr, 1.0)
     return values, std, corr, sv, Vt, s2
 
