@@ -22,8 +22,13 @@ def energy_per_cycle(
     - `solution`: a `Solution` from `simulate` or `sweep`.
     - `period`: the excitation period $P$ [s] (1/frequency), scalar or per run.
     """
-    ts = solution.ts
-    power = solution.force * solution.velocity
+    ts, force, velocity = solution.ts, solution.force, solution.velocity
+    if ts is None or force is None or velocity is None:
+        raise ValueError(
+            "energy_per_cycle needs the solution's ts, force and velocity: pass them "
+            "in `sweep(..., keep=)`."
+        )
+    power = force * velocity
     t_end = ts[..., -1:]
     period = jnp.asarray(period)[..., None]
     inside = ts >= t_end - period - 1e-9 * period

@@ -1,5 +1,9 @@
 """What a simulation returns: time series and a result code."""
 
+import dataclasses
+from collections.abc import Sequence
+from typing import ClassVar
+
 import diffrax as dfx
 import equinox as eqx
 
@@ -52,21 +56,60 @@ class Solution(eqx.Module):
     - `result`: a `jaxmr.RESULTS` code per run.
     - `num_steps`: integrator steps taken per run.
     - `state_names`: names of the internal states.
+
+    A field is `None` when `sweep(..., keep=)` did not ask for it.
     """
 
-    ts: Float[Array, "*batch times"]
-    displacement: Float[Array, "*batch times"]
-    velocity: Float[Array, "*batch times"]
-    current: Float[Array, "*batch times"]
-    effective_current: Float[Array, "*batch times"]
-    force: Float[Array, "*batch times"]
-    states: Float[Array, "*batch times states"]
+    ts: Float[Array, "*batch times"] | None
+    displacement: Float[Array, "*batch times"] | None
+    velocity: Float[Array, "*batch times"] | None
+    current: Float[Array, "*batch times"] | None
+    effective_current: Float[Array, "*batch times"] | None
+    force: Float[Array, "*batch times"] | None
+    states: Float[Array, "*batch times states"] | None
     result: RESULTS
     num_steps: Int[Array, "*batch"]
     state_names: tuple[str, ...] = eqx.field(static=True)
 
+    # The fields `sweep(..., keep=)` may drop; `result` and `num_steps` always stay.
+    OPTIONAL: ClassVar[tuple[str, ...]] = (
+        "ts",
+        "displacement",
+        "velocity",
+        "current",
+        "effective_current",
+        "force",
+        "states",
+    )
+
+    @classmethod
+    def check_fields(cls, keep: Sequence[str] | None) -> tuple[str, ...] | None:
+        """`keep` as a sorted tuple of field names (hashable, one compilation per
+        set), or a readable error."""
+        if keep is None:
+            return None
+        if isinstance(keep, str):
+            keep = (keep,)
+        unknown = [name for name in keep if name not in cls.OPTIONAL]
+        if unknown:
+            raise ValueError(
+                f"`keep` names Solution fields; unknown: {unknown}. Choose from "
+                f"{cls.OPTIONAL} (result and num_steps are always kept)."
+            )
+        return tuple(sorted(set(keep)))
+
+    def only(self, keep: Sequence[str]) -> "Solution":
+        """This solution with the fields not in `keep` set to None."""
+        dropped = {name: None for name in self.OPTIONAL if name not in keep}
+        return dataclasses.replace(self, **dropped)
+
     def state(self, name: str) -> Float[Array, "*batch times"]:
         """One internal state by name (e.g. `"z"`)."""
+        if self.states is None:
+            raise ValueError(
+                "this solution was computed without its states (`keep` did not name "
+                "'states')."
+            )
         if name not in self.state_names:
             raise KeyError(
                 f"no state named {name!r}; this model's states are {self.state_names}."

@@ -26,7 +26,7 @@ def paths(monkeypatch):
     original = _simulate._sweep
 
     def spy(*args):
-        taken.append(args[-1])
+        taken.append(args[10])  # `shared`, after the sweep's 10 other arguments
         return original(*args)
 
     monkeypatch.setattr(_simulate, "_sweep", spy)
@@ -103,6 +103,31 @@ def test_signals_and_zipped_motions_take_the_full_path(paths):
     jaxmr.sweep(model, MOTIONS, CURRENTS[:2], TS, integrator=fixed, grid=False)
     jaxmr.sweep(model, MOTIONS, 0.5, TS, integrator=fixed)  # no current batch
     assert paths == [True, False, False]
+
+
+@pytest.mark.parametrize("share", [True, False], ids=["shared", "full"])
+def test_keep_returns_the_same_force_alone(share, paths, monkeypatch):
+    """`keep=("force",)` drops the other fields on either path; the force is the
+    whole solution's, bit for bit (the same operations, fewer outputs)."""
+    model = jaxmr.sas_brake_bouc_wen()
+    if not share:
+        monkeypatch.setattr(_simulate, "_state_ignores_current", lambda *_: False)
+    fixed = jaxmr.FixedStep(3)
+    whole = jaxmr.sweep(model, MOTIONS, CURRENTS, TS, integrator=fixed)
+    force = jaxmr.sweep(model, MOTIONS, CURRENTS, TS, integrator=fixed, keep="force")
+    assert paths == [share, share]
+    np.testing.assert_array_equal(force.force, whole.force)
+    np.testing.assert_array_equal(force.num_steps, whole.num_steps)
+    np.testing.assert_array_equal(force.result._value, whole.result._value)
+    dropped = [name for name in FIELDS if getattr(force, name) is None]
+    assert dropped == [n for n in FIELDS if n not in ("force", "num_steps")]
+    with pytest.raises(ValueError, match="without its states"):
+        force.state("z")
+
+
+def test_keep_names_unknown_fields():
+    with pytest.raises(ValueError, match=r"unknown: \['torque'\]"):
+        jaxmr.sweep(jaxmr.sas_brake_bouc_wen(), MOTIONS, CURRENTS, TS, keep=("torque",))
 
 
 def test_shared_path_keeps_table_checks():
