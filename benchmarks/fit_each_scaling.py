@@ -201,6 +201,9 @@ def main():
             figures["equal_results"] = bool(
                 np.array_equal(many["values"], one["values"])
             )
+            figures["records_differing"] = int(
+                np.sum(np.any(many["values"] != one["values"], axis=1))
+            )
             figures["largest_relative_difference"] = float(
                 np.max(
                     np.abs(many["values"] - one["values"])

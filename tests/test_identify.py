@@ -170,6 +170,25 @@ def test_fit_each_fits_independent_runs_in_one_batch():
         jaxmr.fit_each([dahl_guess()] * 3, dahl_runs(rhos, k_ws), progress=False)
 
 
+def test_fit_each_result_does_not_depend_on_the_other_problems(monkeypatch):
+    """In chunks of 2 (the package's is 16: too many for a quick test), two runs fitted
+    alone and the same two beside two others give the same bits: the same compiled
+    shapes, and a problem that has stopped keeps its answer however long the batch
+    steps on for the others."""
+    from jaxmr._identify import fitting
+
+    monkeypatch.setattr(fitting, "FIT_EACH_CHUNK", 2)
+    runs = dahl_runs((3.0, 5.0, 8.0, 12.0), (1.0, 2.0, 3.0, 4.0))
+    kwargs = dict(progress=False, statistics_refinement=1)
+    four = jaxmr.fit_each(dahl_guess(), runs, **kwargs)
+    two = jaxmr.fit_each(dahl_guess(), runs[:2], **kwargs)
+    for alone, beside in zip(two, four[:2]):
+        np.testing.assert_array_equal(alone.values, beside.values)
+        assert alone.num_steps == beside.num_steps
+    # Each problem's own step count, not the batch's.
+    assert len({r.num_steps for r in four}) > 1, [r.num_steps for r in four]
+
+
 def test_multistart_keeps_the_best_and_interrupt_keeps_progress():
     runs = dahl_runs((5.0,), (3.0,))
     result = jaxmr.fit(

@@ -250,6 +250,13 @@ def fit(
     )
 
 
+# `fit_each` runs its problems this many at a time (`solver.iterate`'s `chunk`): the
+# same compiled shapes in every layout, so a problem's result does not depend on how
+# many others share its call or its devices. 256 brake fits on 2 cores: 91 s in chunks
+# of 16, 99 s in chunks of 8 or 32, 113 s as one vmap of 256.
+FIT_EACH_CHUNK = 16
+
+
 def fit_each(
     model: AbstractHysteresis | Damper | Sequence[AbstractHysteresis | Damper],
     experiments: Sequence,
@@ -278,7 +285,9 @@ def fit_each(
     the batch is split across them with `jax.sharding` (a 1-D mesh of
     `jax.devices()`), padded with copies of its last problem to a multiple of the
     device count and trimmed after; not over several CPU devices of one process,
-    where a large batch hung (use processes: one CPU device each).
+    where a large batch hung (use processes: one CPU device each). The problems run
+    16 at a time on each device, so each one's result is the same bits whatever the
+    number of problems, devices or processes (with at least 16 problems per device).
 
     Several processes (hosts, or one process per GPU): start each with
     `jax.distributed.initialize()` and make the same call with the same experiments
@@ -335,7 +344,10 @@ def fit_each(
             # (2026-11-24; 8 ran), while the same batch over 2 processes ran
             # (benchmarks/fit_each_scaling.py). One CPU device per process is safe.
             mesh = None
-    count = padded_size(n, mesh)
+    devices = 1 if mesh is None else mesh.size
+    chunk = min(FIT_EACH_CHUNK, -(-n // devices))
+    count = padded_size(-(-n // chunk) * chunk, mesh)
+    count = -(-count // (chunk * devices)) * chunk * devices
     batched = spread(stack(problems + [problems[-1]] * (count - n)), mesh)
     if own_starts is None:
         ys = jax.tree.map(lambda a: jnp.broadcast_to(a, (count,) + a.shape), free)
@@ -356,6 +368,8 @@ def fit_each(
         patience,
         ftol,
         progress_printer(progress),
+        chunk=chunk,
+        mesh=mesh,
     )
     # Every problem padded to one shape (and its refined data to another): the
     # reports then share one compiled simulation and one Jacobian, not one each.

@@ -15,13 +15,13 @@ from typing import Any
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-import lineax as lx
 import numpy as np
 import optimistix as optx
 from jax.flatten_util import ravel_pytree
+from jax.sharding import PartitionSpec
 
 from .._custom_types import Array, Bool, Float
-from .._distribute import to_host
+from .._distribute import BATCH as MESH_AXIS, to_host
 from .._parameter import Bounded, Fixed, Positive, free_filter, is_parameter
 from .residual import value_and_jacobian, value_and_jacobian_jit
 from .result import Outcome
@@ -50,7 +50,7 @@ class FastLevenbergMarquardt(optx.AbstractLeastSquaresSolver):
     one forward-mode pass (`jax.jacfwd`, all columns at once), only where the step is
     accepted. The step and the trust-region rule are optimistix's
     (`DampedNewtonDescent`, `ClassicalTrustRegion`): the damped Gauss–Newton step from
-    a QR solve of $[J; \sqrt{\lambda} I]\,\delta = [r; 0]$ (lineax), λ = 1/radius;
+    a QR solve of $[J; \sqrt{\lambda} I]\,\delta = [r; 0]$, λ = 1/radius;
     a step is accepted when it achieves 1 % of the predicted reduction, and the radius
     grows 10x (optimistix: 3.5x) after one that achieves 75 % (optimistix: 99 %) and
     shrinks 4x after a rejection. From starts far from the optimum (the published UTFSM
@@ -138,14 +138,22 @@ class FastLevenbergMarquardt(optx.AbstractLeastSquaresSolver):
         )
         # The damped Gauss–Newton step from the new point (optimistix's
         # `damped_newton_step`): least squares on [J; sqrt(λ) I] δ = [r; 0].
+        # A reduced QR (what lineax's `QR` solver does for a tall matrix), written
+        # with jax.numpy: inside `shard_map` (`fit_each`'s chunks) lineax refused the
+        # vector, whose structure carries the mesh's sharding and the operator's not.
         lam = 1.0 / radius
-        operator = lx.MatrixLinearOperator(
+        q, upper = jnp.linalg.qr(
             jnp.concatenate([jacobian, jnp.sqrt(lam) * jnp.eye(flat.size)])
         )
-        vector = jnp.concatenate([residual, jnp.zeros(flat.size, residual.dtype)])
-        solution = lx.linear_solve(operator, vector, lx.QR(), throw=False)
-        result = optx.RESULTS.promote(solution.result)
-        y_eval = new_y - solution.value
+        step = jax.scipy.linalg.solve_triangular(
+            upper, q[: residual.size].T @ residual, lower=False
+        )
+        result = optx.RESULTS.where(
+            jnp.all(jnp.isfinite(step)),
+            optx.RESULTS.successful,
+            optx.RESULTS.nonfinite,
+        )
+        y_eval = new_y - step
         state = _LMState(
             first_step=jnp.array(False),
             y_eval=y_eval,
@@ -294,24 +302,24 @@ def _lm_fn(y, args):
 
 
 _OPTIONS = {"jac": "fwd"}
-BATCH = "batch"  # the vmap axis of a batch of problems (starts, or `fit_each`)
+# The vmap axis of a batch of problems (starts, or `fit_each`); not the mesh's axis.
+BATCH = "members"
 
 
 # Module-level and jitted on their arguments. The solver state holds a jaxpr (static,
 # compared by identity): only its arrays cross the jit boundary, with the static part
 # from `_init` passed unchanged each step, so the compiled step is reused.
 @eqx.filter_jit
-def _init(solver, ys, args, data_axis):
+def _init(solver, ys, args, data_axis, chunk, mesh):
     def one(y, args):
         f_struct, aux_struct = jax.eval_shape(lambda: _lm_fn(y, args))
         return solver.init(_lm_fn, y, args, _OPTIONS, f_struct, aux_struct, frozenset())
 
-    in_axes = (0, (None, None, data_axis, None))
-    return eqx.filter_vmap(one, in_axes=in_axes, axis_name=BATCH)(ys, args)
+    return _over_batch(one, (ys,), args, data_axis, chunk, mesh)
 
 
 @eqx.filter_jit
-def _step(solver, ys, dynamic, static_state, args, data_axis):
+def _step(solver, ys, dynamic, static_state, args, data_axis, chunk, mesh):
     def one(y, dyn, args):
         state = eqx.combine(dyn, static_state)
         y, state, (loss, at) = solver.step(
@@ -321,8 +329,66 @@ def _step(solver, ys, dynamic, static_state, args, data_axis):
         failed = result != optx.RESULTS.successful
         return y, eqx.filter(state, eqx.is_array), loss, at, done, failed
 
-    in_axes = (0, 0, (None, None, data_axis, None))
-    return eqx.filter_vmap(one, in_axes=in_axes, axis_name=BATCH)(ys, dynamic, args)
+    return _over_batch(one, (ys, dynamic), args, data_axis, chunk, mesh)
+
+
+def _over_batch(one, members, args, data_axis, chunk, mesh):
+    """`one(*member, args)` vmapped over axis 0 of `members` (and of the data in
+    `args` when `data_axis` is 0). With `chunk`, the batch runs `chunk` members at a
+    time, one chunk after another (`lax.map`), on each device's own shard of `mesh`
+    (`shard_map`; the batch is spread over it, or `mesh` is None): every compiled operation then has the same shape whatever the
+    batch's size and its split over devices and processes, so each member's result
+    is the same bits in every layout. (One vmap over the whole batch is not: 256
+    brake fits in one process and 128 in each of two differed in the last bits, and
+    a fit on a flat valley then ended elsewhere.)"""
+    fn, static, data, extra = args
+
+    def run(members, data, extra):
+        return eqx.filter_vmap(
+            lambda *a: one(*a[:-2], (fn, static, a[-2], a[-1])),
+            in_axes=(0,) * len(members) + (data_axis, None),
+            axis_name=BATCH,
+        )(*members, data, extra)
+
+    if chunk is None:
+        return run(members, data, extra)
+    # What is split (the members, and the data when batched) and what every chunk
+    # shares, as arrays (they cross `shard_map`) and the rest.
+    own, own_static = eqx.partition(
+        (members, data if data_axis == 0 else None), eqx.is_array
+    )
+    shared, shared_static = eqx.partition(
+        (None if data_axis == 0 else data, extra), eqx.is_array
+    )
+    out_static = []  # the output's non-array part, seen when the chunk is traced
+
+    def local(own, shared):
+        common, ex = eqx.combine(shared, shared_static)
+        n = jax.tree.leaves(own)[0].shape[0]
+
+        def one_chunk(c):
+            ms, d = eqx.combine(c, own_static)
+            out, rest = eqx.partition(
+                run(ms, common if data_axis is None else d, ex), eqx.is_array
+            )
+            out_static.append(rest)
+            return out
+
+        split = lambda a: a.reshape((n // chunk, chunk) + a.shape[1:])
+        out = jax.lax.map(one_chunk, jax.tree.map(split, own))
+        return jax.tree.map(lambda a: a.reshape((n,) + a.shape[2:]), out)
+
+    if mesh is None:
+        out = local(own, shared)
+    else:
+        out = jax.shard_map(
+            local,
+            mesh=mesh,
+            in_specs=(PartitionSpec(MESH_AXIS), PartitionSpec()),
+            out_specs=PartitionSpec(MESH_AXIS),
+            check_vma=False,
+        )(own, shared)
+    return eqx.combine(out, out_static[0])
 
 
 # A member has also stalled when this many *accepted* steps (steps that lowered its
@@ -334,13 +400,25 @@ def _step(solver, ys, dynamic, static_state, args, data_axis):
 ACCEPTED_PATIENCE = 3
 
 
-def iterate(solver, ys, args, data_axis, max_steps, patience, ftol, report):
+def iterate(
+    solver,
+    ys,
+    args,
+    data_axis,
+    max_steps,
+    patience,
+    ftol,
+    report,
+    chunk=None,
+    mesh=None,
+):
     """Levenberg–Marquardt on a batch of problems, stepped from Python.
 
     Axis 0 of `ys` is the batch (starts, or independent problems when `data_axis` is
     0 and the data in `args` are batched too). Keeps each member's best parameters,
     stops each on its own convergence, failure or stall (no relative improvement of
-    `ftol` in `patience` steps, or in `ACCEPTED_PATIENCE` accepted steps). A `KeyboardInterrupt` stops
+    `ftol` in `patience` steps, or in `ACCEPTED_PATIENCE` accepted steps). `chunk`,
+    `mesh`: see `_over_batch`. A `KeyboardInterrupt` stops
     the loop with the best parameters so far (`interrupted` is then True); any other
     exception propagates (a programming error is not a fit result).
 
@@ -351,7 +429,7 @@ def iterate(solver, ys, args, data_axis, max_steps, patience, ftol, report):
         # A member's Jacobian is then computed when any member accepted its step.
         solver = FastLevenbergMarquardt(solver.rtol, solver.atol, solver.norm, BATCH)
     dynamic, static_state = eqx.partition(
-        _init(solver, ys, args, data_axis), eqx.is_array
+        _init(solver, ys, args, data_axis, chunk, mesh), eqx.is_array
     )
     n = jax.tree.leaves(ys)[0].shape[0]
     best_loss = np.full(n, np.inf)
@@ -362,16 +440,21 @@ def iterate(solver, ys, args, data_axis, max_steps, patience, ftol, report):
     converged = np.zeros(n, dtype=bool)
     failed = np.zeros(n, dtype=bool)
     stalled = np.zeros(n, dtype=bool)
+    steps = np.zeros(n, dtype=int)  # each member's own, up to its stop
     interrupted, k = False, 0
     try:
         for k in range(1, max_steps + 1):
             ys, dynamic, loss, at, done, bad = _step(
-                solver, ys, dynamic, static_state, args, data_axis
+                solver, ys, dynamic, static_state, args, data_axis, chunk, mesh
             )
             # Every process reads the whole batch (one collective when it is spread
             # over processes), so all take the same decisions below.
             loss, done, bad = (to_host(a) for a in (loss, done, bad))
-            better = np.isfinite(loss) & (loss < best_loss)
+            # A member that has stopped keeps its result: the batch steps on for the
+            # others, and how long it does must not change this member's answer.
+            active = ~(converged | failed | stalled)
+            steps = np.where(active, k, steps)
+            better = active & np.isfinite(loss) & (loss < best_loss)
             best_y = jax.tree.map(
                 lambda new, old, b=better: jnp.where(
                     jnp.reshape(b, (-1,) + (1,) * (new.ndim - 1)), new, old
@@ -386,7 +469,6 @@ def iterate(solver, ys, args, data_axis, max_steps, patience, ftol, report):
             accepted_since = np.where(improved, 0, accepted_since + better)
             history.append(float(np.min(best_loss)))
             report(k, float(np.min(best_loss)))
-            active = ~(converged | failed | stalled)
             failed |= active & bad
             converged |= active & done & ~bad
             stalled |= active & (
@@ -420,7 +502,9 @@ def iterate(solver, ys, args, data_axis, max_steps, patience, ftol, report):
         else:
             reasons.append(f"reached max_steps = {max_steps}")
     return best_y, [
-        Outcome(float(best_loss[j]), tuple(history), k, reasons[j], interrupted)
+        Outcome(
+            float(best_loss[j]), tuple(history), int(steps[j]), reasons[j], interrupted
+        )
         for j in range(n)
     ]
 
