@@ -105,6 +105,13 @@ def add_parser(subparsers) -> None:
         "e.g. .alpha.b) instead of D-optimal for all",
     )
     command.add_argument(
+        "--criterion",
+        choices=("D", "A", "I"),
+        help="D-optimal (default), A-optimal for --parameters (the default with "
+        "them), or I-optimal: the smallest predicted variance of the fitted force "
+        "over every candidate, for a model meant to predict the menu",
+    )
+    command.add_argument(
         "--weighting",
         choices=("nrmse", "force"),
         default="nrmse",
@@ -276,6 +283,7 @@ def run(args: argparse.Namespace) -> int:
             tests,
             args.k,
             parameters=args.parameters,
+            criterion=args.criterion,
             already=already,
             weighting=args.weighting,
             noise=args.noise,
@@ -324,13 +332,8 @@ def _refuse_existing(paths) -> None:
 def _write_plan(f, design, rows, paths) -> None:
     unit = "rad" if design.plan[0].rotary else "m"
     current = "V" if getattr(design.plan[0], "drive", "current") == "voltage" else "A"
-    what = (
-        "D-optimal"
-        if design.criterion == "D"
-        else "A-optimal for " + " ".join(design.parameters)
-    )
     f.write(
-        f"# jaxmr experiment plan: {what}, {len(rows)} of "
+        f"# jaxmr experiment plan: {design.criterion_text}, {len(rows)} of "
         f"{len(design.candidate_names)} candidate tests\n"
         f"# units: amplitude [{unit}] (half the peak-to-peak motion), frequency [Hz], "
         f"current [{current}] (empty if it varies), duration [s]\n"

@@ -93,6 +93,26 @@ def test_a_optimal_plan_is_the_best_of_all_plans(menu, design):
     assert values.min() < 0.6 * np.median(values)
 
 
+def test_i_optimal_plan_is_the_best_of_all_plans(menu, design):
+    """I-optimality: the smallest tr(M_all M⁻¹), the predicted variance of the fitted
+    (weighted) force summed over every candidate, against brute force."""
+    i = jaxmr.design_experiments(truth(), menu, 3, criterion="I")
+    total = design.information.sum(axis=0)
+
+    def criterion(plan):
+        M = design.information_of(plan)
+        if np.linalg.matrix_rank(M) < M.shape[0]:
+            return np.inf  # a plan that leaves a parameter undetermined
+        return np.trace(total @ np.linalg.inv(M))
+
+    plans = list(itertools.combinations(range(12), 3))
+    values = np.array([criterion(plan) for plan in plans])
+    assert i.criterion == "I" and "I-optimal" in str(i)
+    # rtol 1e-6: the design's criterion carries a ridge of 1e-9 (relative).
+    np.testing.assert_allclose(criterion(i.indices), values.min(), rtol=1e-6)
+    assert values.min() < 0.6 * np.median(values)
+
+
 def test_exchange_repairs_the_greedy_choice():
     """Random rank-1 informations (one observation each; p = 4, 5 of 10 chosen): in
     8 of these 100 cases the greedy plan is not the best of the 252, and the exchanges
@@ -216,6 +236,10 @@ def test_arguments_are_checked(menu):
         jaxmr.design_experiments(truth(), menu, 13)
     with pytest.raises(ValueError, match="not among the model's free parameters"):
         jaxmr.design_experiments(truth(), menu, 2, parameters=".alpha")
+    with pytest.raises(ValueError, match="`criterion` must be 'D', 'A' or 'I'"):
+        jaxmr.design_experiments(truth(), menu, 2, criterion="E")
+    with pytest.raises(ValueError, match="A-optimality needs `parameters`"):
+        jaxmr.design_experiments(truth(), menu, 2, criterion="A")
     with pytest.raises(ValueError, match="one per test"):
         jaxmr.design_experiments(
             truth(), menu, 2, discard=[0.1] * 12, already=[menu[0]]

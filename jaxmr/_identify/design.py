@@ -286,16 +286,19 @@ def _information(free, static, motions, policy, discard, smoothing, batch_size):
 
 
 def _objective(p: int, weights: np.ndarray | None) -> Callable:
-    """The criterion to maximise over stacks of information matrices (unit-diagonal
+    r"""The criterion to maximise over stacks of information matrices (unit-diagonal
     coordinates, `RIDGE` added): log det (D), or minus the weighted trace of the
-    inverse (A)."""
+    inverse, $-\mathrm{tr}(W M^{-1})$, with `weights` the diagonal of W (A) or W
+    itself (I)."""
     ridge = RIDGE * np.eye(p)
+    if weights is not None and weights.ndim == 1:
+        weights = np.diag(weights)
 
     def value(M):
         M = M + ridge
         if weights is None:
             return np.linalg.slogdet(M)[1]
-        return -np.einsum("...jj,j->...", np.linalg.inv(M), weights)
+        return -np.einsum("...ij,ji->...", np.linalg.inv(M), weights)
 
     return value
 
@@ -360,9 +363,10 @@ class Design:
 
     - `indices`: the chosen candidates' positions in the menu, ascending.
     - `plan`: the chosen candidates themselves (the objects given), in that order.
-    - `criterion`: `"D"` (largest log det of the information) or `"A"` (smallest sum
-      of squared relative standard errors of `parameters`).
-    - `parameters`: the parameters A-optimality is about (empty for D).
+    - `criterion`: `"D"` (largest log det of the information), `"A"` (smallest sum
+      of squared relative standard errors of `parameters`) or `"I"` (smallest
+      predicted variance of the fitted force, summed over every candidate test).
+    - `parameters`: the parameters A-optimality is about (empty for D and I).
     - `names`, `values`: all free parameters (named as `FitResult.names`) and their
       values at the model the design was computed for.
     - `information`: per candidate, its Fisher information JᵀJ/σ² in the
@@ -463,14 +467,18 @@ class Design:
                 )
         return "\n".join(lines)
 
+    @property
+    def criterion_text(self) -> str:
+        """The criterion in words, e.g. "D-optimal"."""
+        return {
+            "D": "D-optimal",
+            "I": "I-optimal (prediction over the menu)",
+            "A": f"A-optimal for {', '.join(self.parameters)}",
+        }[self.criterion]
+
     def __str__(self):
-        what = (
-            "D-optimal"
-            if self.criterion == "D"
-            else f"A-optimal for {', '.join(self.parameters)}"
-        )
         head = (
-            f"design ({what}): {len(self.indices)} of {len(self.candidate_names)} "
+            f"design ({self.criterion_text}): {len(self.indices)} of {len(self.candidate_names)} "
             f"tests, {self.swaps} exchange(s) after the greedy choice; log det "
             f"{self.log_det:.3f} (all candidates {self.log_det_all:.3f})"
         )
@@ -483,6 +491,7 @@ def design_experiments(
     k: int,
     *,
     parameters: str | Sequence[str] | None = None,
+    criterion: str | None = None,
     already: Sequence = (),
     weighting: str = "nrmse",
     noise: float = 1.0,
@@ -492,8 +501,11 @@ def design_experiments(
     batch_size: int | None = None,
 ) -> Design:
     r"""Choose `k` of the `candidates` tests that identify `model`'s free parameters
-    best: D-optimal (largest $\log\det M$) or, with `parameters`, A-optimal for them
-    (smallest $\sum_j (\mathrm{se}_j/|\theta_j|)^2$ over the named ones).
+    best: D-optimal (largest $\log\det M$); with `parameters`, A-optimal for them
+    (smallest $\sum_j (\mathrm{se}_j/|\theta_j|)^2$ over the named ones); or
+    I-optimal for prediction (smallest $\mathrm{tr}(M_\text{all} M^{-1})$, the
+    predicted variance of the fitted model's weighted force summed over every
+    candidate test, $M_\text{all}$ their information).
 
     $M = M_0 + \sum_{e \in \text{plan}} J_e^\top J_e/\sigma_e^2$ is the Fisher
     information in the fit's coordinates (log of `Positive` parameters, the logistic
@@ -519,6 +531,10 @@ def design_experiments(
     - `k`: how many to choose (distinct candidates).
     - `parameters`: names (as `FitResult.names`, e.g. `".alpha.b"`) for A-optimality;
       `None`: D-optimality over all free parameters.
+    - `criterion`: `"D"`, `"A"` or `"I"` (default: `"A"` with `parameters`, else
+      `"D"`). I-optimality spreads the plan over the conditions the menu covers,
+      where D-optimality goes to its extremes: on the UTFSM damper (6 of 30 tests)
+      it is the one that predicted the other 24 tests better (benchmarks/README).
     - `already`: tests already run (sequential design): their information is added
       before choosing.
     - `weighting`: how the fit to come weighs the tests, as `fit`'s `weighting`:
@@ -570,6 +586,15 @@ def design_experiments(
     if isinstance(parameters, str):
         parameters = (parameters,)
     parameters = () if parameters is None else tuple(parameters)
+    if criterion is None:
+        criterion = "A" if parameters else "D"
+    if criterion not in ("D", "A", "I"):
+        raise ValueError(f"`criterion` must be 'D', 'A' or 'I', got {criterion!r}.")
+    if (criterion == "A") != bool(parameters):
+        raise ValueError(
+            "A-optimality needs `parameters` (the names it is about), and only it "
+            f"reads them; got criterion {criterion!r} with parameters {parameters}."
+        )
     unknown = [name for name in parameters if name not in names]
     if unknown:
         raise ValueError(
@@ -612,6 +637,9 @@ def design_experiments(
     unit = np.outer(d, d)
     values, value_scale = _values_and_scale(free, static)
     weights = None
+    if criterion == "I":
+        # Prediction over the menu: tr(M_all M^-1), M_all every candidate's information.
+        weights = information.sum(axis=0) / unit
     if parameters:
         # A-optimality on relative standard errors, se/|value| (for a Positive its
         # log's standard error), so that parameters of different units add; a
@@ -633,7 +661,7 @@ def design_experiments(
     return Design(
         indices=tuple(chosen),
         plan=tuple(candidates[c] for c in chosen),
-        criterion="A" if parameters else "D",
+        criterion=criterion,
         parameters=parameters,
         names=tuple(names),
         values=values,
