@@ -336,9 +336,9 @@ def _over_batch(one, members, args, data_axis, chunk, mesh):
     """`one(*member, args)` vmapped over axis 0 of `members` (and of the data in
     `args` when `data_axis` is 0). With `chunk`, the batch runs `chunk` members at a
     time, one chunk after another (`lax.map`), on each device's own shard of `mesh`
-    (`shard_map`; the batch is spread over it, or `mesh` is None): every compiled operation then has the same shape whatever the
-    batch's size and its split over devices and processes, so each member's result
-    is the same bits in every layout. (One vmap over the whole batch is not: 256
+    (`shard_map`; the batch is spread over it, or `mesh` is None): every compiled
+    operation then has the same shape whatever the batch's size and its split over
+    devices and processes, so each member's result is the same bits in every layout. (One vmap over the whole batch is not: 256
     brake fits in one process and 128 in each of two differed in the last bits, and
     a fit on a flat valley then ended elsewhere.)"""
     fn, static, data, extra = args
