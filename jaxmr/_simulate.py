@@ -602,7 +602,7 @@ def sweep(
     batching: Literal["auto", "vmap", "map"] = "auto",
     batch_size: int | None = None,  # None: one run at a time, see _auto_batching
     throw: bool = True,
-    keep: Sequence[str] | None = None,
+    keep: str | Sequence[str] | None = None,
 ) -> Solution:
     r"""Simulate many runs in one call: over currents, motions and parameter sets.
 

@@ -83,7 +83,7 @@ class Solution(eqx.Module):
     )
 
     @classmethod
-    def check_fields(cls, keep: Sequence[str] | None) -> tuple[str, ...] | None:
+    def check_fields(cls, keep: str | Sequence[str] | None) -> tuple[str, ...] | None:
         """`keep` as a sorted tuple of field names (hashable, one compilation per
         set), or a readable error."""
         if keep is None:

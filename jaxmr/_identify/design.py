@@ -478,8 +478,9 @@ class Design:
 
     def __str__(self):
         head = (
-            f"design ({self.criterion_text}): {len(self.indices)} of {len(self.candidate_names)} "
-            f"tests, {self.swaps} exchange(s) after the greedy choice; log det "
+            f"design ({self.criterion_text}): {len(self.indices)} of "
+            f"{len(self.candidate_names)} tests, {self.swaps} exchange(s) after the "
+            "greedy choice; log det "
             f"{self.log_det:.3f} (all candidates {self.log_det_all:.3f})"
         )
         return head + "\n" + self.table()

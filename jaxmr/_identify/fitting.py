@@ -12,7 +12,7 @@ import optimistix as optx
 
 from .._current_law import ConstantLaw, is_law
 from .._damper import Damper
-from .._distribute import BATCH, batch_mesh, gather, padded_size, spread
+from .._distribute import BATCH, batch_mesh, gather, spread
 from .._hysteresis import AbstractHysteresis
 from .._misc import warn_if_float32
 from .._parameter import free_filter
@@ -346,8 +346,8 @@ def fit_each(
             mesh = None
     devices = 1 if mesh is None else mesh.size
     chunk = min(FIT_EACH_CHUNK, -(-n // devices))
-    count = padded_size(-(-n // chunk) * chunk, mesh)
-    count = -(-count // (chunk * devices)) * chunk * devices
+    # Padded to whole chunks on every device.
+    count = -(-n // (chunk * devices)) * chunk * devices
     batched = spread(stack(problems + [problems[-1]] * (count - n)), mesh)
     if own_starts is None:
         ys = jax.tree.map(lambda a: jnp.broadcast_to(a, (count,) + a.shape), free)

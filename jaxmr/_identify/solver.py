@@ -338,9 +338,10 @@ def _over_batch(one, members, args, data_axis, chunk, mesh):
     time, one chunk after another (`lax.map`), on each device's own shard of `mesh`
     (`shard_map`; the batch is spread over it, or `mesh` is None): every compiled
     operation then has the same shape whatever the batch's size and its split over
-    devices and processes, so each member's result is the same bits in every layout. (One vmap over the whole batch is not: 256
-    brake fits in one process and 128 in each of two differed in the last bits, and
-    a fit on a flat valley then ended elsewhere.)"""
+    devices and processes, so each member's result is the same bits in every layout.
+    (One vmap over the whole batch is not: 256 brake fits in one process and 128 in
+    each of two differed in the last bits, and a fit on a flat valley then ended
+    elsewhere.)"""
     fn, static, data, extra = args
 
     def run(members, data, extra):
@@ -352,25 +353,21 @@ def _over_batch(one, members, args, data_axis, chunk, mesh):
 
     if chunk is None:
         return run(members, data, extra)
-    # What is split (the members, and the data when batched) and what every chunk
-    # shares, as arrays (they cross `shard_map`) and the rest.
-    own, own_static = eqx.partition(
-        (members, data if data_axis == 0 else None), eqx.is_array
-    )
-    shared, shared_static = eqx.partition(
-        (None if data_axis == 0 else data, extra), eqx.is_array
-    )
+    # Chunks serve `fit_each`, whose problems carry their own data: the members and
+    # the data are split, the column scale `extra` is shared (arrays cross `shard_map`).
+    if data_axis != 0:
+        raise ValueError("chunked batches need batched data (data_axis 0).")
+    own, own_static = eqx.partition((members, data), eqx.is_array)
+    shared, shared_static = eqx.partition(extra, eqx.is_array)
     out_static = []  # the output's non-array part, seen when the chunk is traced
 
     def local(own, shared):
-        common, ex = eqx.combine(shared, shared_static)
+        ex = eqx.combine(shared, shared_static)
         n = jax.tree.leaves(own)[0].shape[0]
 
         def one_chunk(c):
             ms, d = eqx.combine(c, own_static)
-            out, rest = eqx.partition(
-                run(ms, common if data_axis is None else d, ex), eqx.is_array
-            )
+            out, rest = eqx.partition(run(ms, d, ex), eqx.is_array)
             out_static.append(rest)
             return out
 
