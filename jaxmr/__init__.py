@@ -17,6 +17,7 @@ __version__ = "0.1.0"
 
 if TYPE_CHECKING:
     from ._analysis import energy_per_cycle as energy_per_cycle
+    from ._channel import ChannelDelay as ChannelDelay
     from ._closed_loop import (
         SystemSolution as SystemSolution,
         dissipated_work as dissipated_work,

@@ -45,6 +45,8 @@ if TYPE_CHECKING:
 # The candidates of `--model auto`: the richest structures first (their screening fits
 # decide), each behind a fitted input lag when the input varies within a file.
 AUTO_CANDIDATES = ("shear_thinning_spencer", "spencer", "bouc_wen")
+# How `jaxmr fit --channel-delay` names a model seen through a fitted channel delay.
+DELAY_SUFFIX = " + channel delay"
 # The names of `jaxmr.MODEL_TEMPLATES` and `jaxmr.data.DATASETS`, for the help texts
 # (both modules import JAX; tests/test_cli.py checks that the lists agree).
 TEMPLATE_NAMES = (
@@ -508,10 +510,12 @@ def _load_model(path: str):
         raise CLIError(f"{path}: not a JSON parameter file ({e})") from e
     except (ValueError, TypeError, AttributeError) as e:
         raise CLIError(f"{path}: not a jaxmr parameter file ({e})") from e
-    if not isinstance(model, (jaxmr.AbstractHysteresis, jaxmr.Damper)):
+    if not isinstance(
+        model, (jaxmr.AbstractHysteresis, jaxmr.Damper, jaxmr.ChannelDelay)
+    ):
         raise CLIError(
             f"{path}: holds a {type(model).__name__}, not a damper model "
-            "(a hysteresis model or Damper)"
+            "(a hysteresis model, Damper or ChannelDelay)"
         )
     return model, data
 
@@ -624,6 +628,15 @@ def _add_fit(subparsers) -> None:
         help=(
             "the start [s] of each file left out of the error (the model still runs "
             "through it); 'file' (default): each file's '# discard:' line, else 0"
+        ),
+    )
+    command.add_argument(
+        "--channel-delay",
+        action="store_true",
+        help=(
+            "fit a delay of the force channel against the motion channels too (each "
+            "model seen through jaxmr.ChannelDelay, |delay| up to 10 ms or 5 sample "
+            "intervals): for rigs whose force and motion are sampled or filtered apart"
         ),
     )
     command.add_argument(
@@ -896,7 +909,7 @@ def _outcome(result) -> str:
 def _fit_and_save(
     args, experiments, smoothing, discard, fit_kwargs, log, out, replacing, interrupts
 ) -> int:
-    from jaxmr._identify.templates import MODEL_TEMPLATES
+    from jaxmr._identify.templates import MODEL_TEMPLATES, with_channel_delay
 
     start = time.perf_counter()
     selection = None
@@ -909,8 +922,12 @@ def _fit_and_save(
             name, result = selection.name, selection.result
         else:
             name = args.model
+            template = MODEL_TEMPLATES[name]
+            if args.channel_delay:
+                template = with_channel_delay(template)
+                name = f"{name}{DELAY_SUFFIX}"
             try:
-                model = MODEL_TEMPLATES[name](experiments)
+                model = template(experiments)
             except ValueError as e:
                 raise CLIError(str(e)) from e
             print(f"fitting {name}...", flush=True)
@@ -967,6 +984,13 @@ def _fit_and_save(
 
 def _select(args, experiments, candidates, smoothing, discard, fit_kwargs, log):
     from jaxmr._identify.select import select_model
+    from jaxmr._identify.templates import MODEL_TEMPLATES, with_channel_delay
+
+    if args.channel_delay:
+        candidates = {
+            f"{c}{DELAY_SUFFIX}": with_channel_delay(MODEL_TEMPLATES[c])
+            for c in candidates
+        }
 
     kwargs = dict(fit_kwargs, finalists=args.finalists, log=log.line)
     if args.holdout:

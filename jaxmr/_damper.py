@@ -97,6 +97,13 @@ def as_damper(device) -> Damper:
         return device
     if isinstance(device, AbstractHysteresis):
         return Damper(device)
+    from ._channel import ChannelDelay
+
+    if isinstance(device, ChannelDelay):
+        raise TypeError(
+            "a ChannelDelay is the device as its force was measured (the rig's "
+            "channel delay), not a device: simulate its `.model`."
+        )
     raise TypeError(
         "expected a jaxmr Damper or hysteresis model (e.g. BoucWen(...)), got "
         f"{type(device).__name__}."

@@ -10,6 +10,7 @@ import numpy as np
 from jax.extend.core import Literal as JaxprLiteral
 from jax.sharding import PartitionSpec
 
+from ._channel import ChannelDelay
 from ._current_law import ranged_laws
 from ._custom_types import ArrayLike, Float, ScalarLike
 from ._damper import Damper, as_damper
@@ -305,6 +306,8 @@ _FLOAT64_NEEDED = (
 
 
 def _prepare(device, motion, current, integrator):
+    if isinstance(device, ChannelDelay):
+        as_damper(device)  # its own message: simulate the device, `.model`
     if not isinstance(device, (Damper, AbstractHysteresis)):
         raise TypeError(
             "`device` must be a jaxmr Damper or hysteresis model, e.g. "

@@ -148,7 +148,9 @@ class FitData(eqx.Module):
     `sample_index` is the flat (lane·steps + step) index of the step that starts at each
     sample, `t`, `force` the measured times and forces; the smoothing is a moving
     average of the simulated force over [lo, hi] per sample (`smooth`: whether to);
-    the residual is over the samples `kept`, times `weight`.
+    `first_sample`, `last_sample` and `interval` are each sample's experiment's first
+    and last sample and its local sample interval [s] (for a `ChannelDelay`); the
+    residual is over the samples `kept`, times `weight`.
     """
 
     inputs: Float[Array, "lanes steps 3 3"]
@@ -164,6 +166,9 @@ class FitData(eqx.Module):
     hi_fraction: Float[Array, " samples"]
     span: Float[Array, " samples"]
     smooth: Bool[Array, " samples"]
+    first_sample: Int[Array, " samples"]
+    last_sample: Int[Array, " samples"]
+    interval: Float[Array, " samples"]
     kept: Int[Array, " residuals"]
     weight: Float[Array, " residuals"]
     names: tuple[str, ...] = eqx.field(static=True)
@@ -356,6 +361,7 @@ def pack(
     offsets, sample_index, kept, weight, kept_counts = [], [], [], [], []
     t_all, force_all, same_run = [], [], []
     lo_index, lo_fraction, hi_index, hi_fraction, span, smooth = [], [], [], [], [], []
+    first_sample, last_sample, interval = [], [], []
     total = 0
     for k, (t, force, _, _, r) in enumerate(runs):
         m = len(t)
@@ -398,6 +404,10 @@ def pack(
         hi_fraction.append(hi_f)
         span.append(window_span)
         smooth.append(np.full(m, width > 0))
+        first_sample.append(np.full(m, total))
+        last_sample.append(np.full(m, total + m - 1))
+        h = np.diff(t)
+        interval.append(np.concatenate([h[:1], h]))
         total += m
 
     cat = np.concatenate
@@ -415,6 +425,9 @@ def pack(
         hi_fraction=jnp.asarray(cat(hi_fraction)),
         span=jnp.asarray(cat(span)),
         smooth=jnp.asarray(cat(smooth)),
+        first_sample=jnp.asarray(cat(first_sample)),
+        last_sample=jnp.asarray(cat(last_sample)),
+        interval=jnp.asarray(cat(interval)),
         kept=jnp.asarray(cat(kept)),
         weight=jnp.asarray(cat(weight)),
         names=tuple(names),
@@ -428,7 +441,7 @@ def pack(
 def pad_to(data: FitData, shape: tuple[int, int, int, int]) -> FitData:
     """`data` padded to (lanes, steps, samples, residuals) — for a batch of independent
     problems of one shape (`fit_each`). Padded steps have length 0, padded samples
-    point at step 0, padded residuals have weight 0."""
+    point at step 0 (and at sample 0, 1 s apart), padded residuals have weight 0."""
     lanes, steps, samples, residuals = shape
 
     def grow(a, n, axis=0, value: float | bool = 0):
@@ -461,6 +474,9 @@ def pad_to(data: FitData, shape: tuple[int, int, int, int]) -> FitData:
             d.hi_fraction,
             d.span,
             d.smooth,
+            d.first_sample,
+            d.last_sample,
+            d.interval,
             d.kept,
             d.weight,
         ),
@@ -479,6 +495,9 @@ def pad_to(data: FitData, shape: tuple[int, int, int, int]) -> FitData:
             grow(data.hi_fraction, samples),
             grow(data.span, samples, 0, 1.0),
             grow(data.smooth, samples),
+            grow(data.first_sample, samples),
+            grow(data.last_sample, samples),
+            grow(data.interval, samples, 0, 1.0),
             grow(data.kept, residuals),
             grow(data.weight, residuals),
         ),

@@ -10,6 +10,7 @@ import jax.numpy as jnp
 import numpy as np
 import optimistix as optx
 
+from .._channel import ChannelDelay
 from .._current_law import ConstantLaw, is_law
 from .._damper import Damper
 from .._distribute import BATCH, batch_mesh, gather, spread
@@ -75,10 +76,10 @@ def _check_enough_data(free, data, where: str = "") -> None:
 
 
 def _split_model(model):
-    if not isinstance(model, (AbstractHysteresis, Damper)):
+    if not isinstance(model, (AbstractHysteresis, Damper, ChannelDelay)):
         raise TypeError(
-            "`model` must be a jaxmr hysteresis model or Damper (its values the "
-            f"initial guess), got {type(model).__name__}."
+            "`model` must be a jaxmr hysteresis model, Damper or ChannelDelay (its "
+            f"values the initial guess), got {type(model).__name__}."
         )
     free, static = eqx.partition(model, free_filter(model))
     if not jax.tree.leaves(free):
@@ -120,7 +121,7 @@ def _report(free, static, data, outcome, stats_data, threshold):
 
 
 def fit(
-    model: AbstractHysteresis | Damper,
+    model: AbstractHysteresis | Damper | ChannelDelay,
     experiments: Sequence,
     *,
     integrator: StepPolicy | None = None,
@@ -258,7 +259,10 @@ FIT_EACH_CHUNK = 16
 
 
 def fit_each(
-    model: AbstractHysteresis | Damper | Sequence[AbstractHysteresis | Damper],
+    model: AbstractHysteresis
+    | Damper
+    | ChannelDelay
+    | Sequence[AbstractHysteresis | Damper | ChannelDelay],
     experiments: Sequence,
     *,
     integrator: StepPolicy | None = None,

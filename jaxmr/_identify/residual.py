@@ -11,6 +11,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 
+from .._channel import delayed, split_channel
 from .._damper import as_damper
 from .._parameter import unwrap
 from .data import FitData
@@ -54,13 +55,20 @@ def _lane(damper, inputs, step, reset, experiments: int):
 
 def simulate(model, data: FitData) -> jax.Array:
     """The model's force [N] (torque [N·m]) at every sample of the packed experiments,
-    smoothed like the data where `data` says so (constraint wrappers resolved)."""
-    damper = as_damper(unwrap(model))
+    smoothed like the data where `data` says so, read through the force channel's
+    delay for a `ChannelDelay` (constraint wrappers resolved)."""
+    device, delay = split_channel(unwrap(model))
+    damper = as_damper(device)
     lane = functools.partial(_lane, experiments=len(data.offsets))
     lanes = jax.vmap(lane, in_axes=(None, 0, 0, 0))(
         damper, data.inputs, data.step, data.reset
     )
     force = lanes.reshape(-1)[data.sample_index]
+    if delay is not None:
+        sample = jnp.arange(force.shape[0], dtype=data.first_sample.dtype)
+        force = delayed(
+            force, delay, sample, data.first_sample, data.last_sample, data.interval
+        )
     # The data's own smoothing (a centred moving average), applied to the simulated
     # force: the trapezoidal integral, zero across experiments, read at each window's
     # ends.

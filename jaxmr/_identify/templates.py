@@ -37,6 +37,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from .._channel import ChannelDelay
 from .._current_dynamics import FirstOrderLag
 from .._current_law import ExponentialLaw, LinearLaw, PolynomialLaw
 from .._damper import Damper
@@ -428,6 +429,36 @@ def with_lag(template: Callable[[Sequence], AbstractHysteresis]):
     lagged.__name__ = f"{template.__name__}_lag"
     lagged.__doc__ = f"`{template.__name__}` behind a fitted first-order input lag."
     return lagged
+
+
+# The largest force-channel delay a fit with `with_channel_delay` considers [s]: a few
+# milliseconds is what load-cell amplifiers' filters and multiplexed acquisition
+# cause; at least `CHANNEL_DELAY_SAMPLES` sample intervals for slowly sampled data.
+CHANNEL_DELAY_BOUND = 0.01
+CHANNEL_DELAY_SAMPLES = 5
+
+
+def channel_delay_bound(experiments: Sequence) -> float:
+    """The bound [s] on |τ| of a fitted `ChannelDelay` for these experiments."""
+    intervals = [
+        float(np.median(np.diff(np.asarray(e.t, dtype=float)))) for e in experiments
+    ]
+    return max(CHANNEL_DELAY_BOUND, CHANNEL_DELAY_SAMPLES * max(intervals))
+
+
+def with_channel_delay(template: Callable[[Sequence], AbstractHysteresis | Damper]):
+    """A template whose model is seen through a fitted force-channel delay
+    (`ChannelDelay(model, Bounded(0, -b, b))`, b from `channel_delay_bound`), for rigs
+    whose force and motion channels are skewed."""
+
+    def delayed(experiments: Sequence) -> ChannelDelay:
+        b = channel_delay_bound(experiments)
+        return ChannelDelay(template(experiments), Bounded(0.0, -b, b))
+
+    name = getattr(template, "__name__", "model")
+    delayed.__name__ = f"{name}_channel_delay"
+    delayed.__doc__ = f"`{name}` seen through a fitted force-channel delay."
+    return delayed
 
 
 def input_varies_in_time(experiments: Sequence) -> bool:
