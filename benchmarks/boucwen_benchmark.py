@@ -64,6 +64,7 @@ jax.config.update("jax_enable_x64", True)
 import equinox as eqx  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
+import optimistix as optx  # noqa: E402
 import scipy.io  # noqa: E402
 import scipy.optimize  # noqa: E402
 
@@ -318,6 +319,47 @@ def timed_simulations(systems: dict, u, kind, substeps):
     return out, timing
 
 
+def against_scipy(
+    train, periods, substeps, solver="fast", max_nfev=400, no_scipy=False
+):
+    """`fit_system` on the training record's first `periods` periods, and scipy's
+    least_squares with finite differences on the same residual from the same start
+    (unless `no_scipy`): (jaxmr's result, the start, scipy's model or None, figures
+    with issue 9's `speedup_vs_scipy_fd`: scipy's time, its residual's compilation
+    included, over jaxmr's, compilation included, to the same loss)."""
+    m, c, k = linear_fit(train.u, train.y)
+    n = periods * PERIOD
+    record = SystemRecord(
+        train.t[:n],
+        train.y[:n],
+        excitation(train.u[:PERIOD], "multisine", substeps, periods),
+        name=f"train, periods 1-{periods}",
+    )
+    start = start_system(m, c, k)
+    print(f"fit_system on {periods} period(s), 6 parameters ...", flush=True)
+    # "lm": optimistix's LevenbergMarquardt, fit_system's alternative to its default.
+    lm = None if solver == "fast" else optx.LevenbergMarquardt(rtol=1e-8, atol=1e-10)
+    result, fit = run_fit(start, record, substeps, lm)
+    print(result)
+    print(f"  {fit['total_s']:.1f} s: first step {fit['first_step_s']:.1f} s (compile), "
+          f"then {fit['median_step_s']:.2f} s per step")  # fmt: skip
+    figures = {"fit": fit}
+    if no_scipy:
+        return result, start, None, figures
+    print("scipy least_squares, finite differences ...", flush=True)
+    model, s = run_scipy(start, record, substeps, max_nfev)
+    figures["scipy"] = s
+    print(f"  {s['run_s']:.1f} s, {s['residual_evaluations']} residuals, "
+          f"loss {s['loss']:.6g} (jaxmr {result.loss:.6g})")  # fmt: skip
+    figures["speedup_vs_scipy_fd"] = (s["compile_s"] + s["run_s"]) / fit["total_s"]
+    figures["speedup_vs_scipy_fd_compiled"] = s["run_s"] / (
+        fit["total_s"] - fit["compile_s_estimate"]
+    )
+    print(f"  speedup_vs_scipy_fd {figures['speedup_vs_scipy_fd']:.2f} "
+          f"({figures['speedup_vs_scipy_fd_compiled']:.2f} without compiling)")  # fmt: skip
+    return result, start, model, figures
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--train", required=True, help="train.h5")
@@ -369,43 +411,14 @@ def main(argv=None):
     figures["linear"] = {"m": m, "c": c, "k": k, "time_s": time.perf_counter() - t0}
     print(f"linear model: m = {m:.4g} kg, c = {c:.4g} N s/m, k = {k:.4g} N/m")
 
-    n = args.periods * PERIOD
-    record = SystemRecord(
-        train.t[:n],
-        train.y[:n],
-        excitation(train.u[:PERIOD], "multisine", args.substeps, args.periods),
-        name=f"train, periods 1-{args.periods}",
+    result, _, scipy_model, fit_figures = against_scipy(
+        train, args.periods, args.substeps, args.solver, args.max_nfev, args.no_scipy
     )
-    start = start_system(m, c, k)
-    print(f"fit_system on {args.periods} period(s), 6 parameters ...", flush=True)
-    solver = None  # fit_system's default: optimistix.LevenbergMarquardt
-    if args.solver == "fast":
-        solver = jaxmr.FastLevenbergMarquardt()
-    result, figures["fit"] = run_fit(start, record, args.substeps, solver)
-    print(result)
-    f = figures["fit"]
-    print(f"  {f['total_s']:.1f} s: first step {f['first_step_s']:.1f} s (compile), "
-          f"then {f['median_step_s']:.2f} s per step")  # fmt: skip
-
+    figures.update(fit_figures)
+    # The first is timed with its compilation, the others reuse it.
     systems = {"fitted": result.model, "true": true, "linear": linear_system(m, c, k)}
-    if not args.no_scipy:
-        print("scipy least_squares, finite differences ...", flush=True)
-        systems["scipy"], figures["scipy"] = run_scipy(
-            start, record, args.substeps, args.max_nfev
-        )
-        s = figures["scipy"]
-        print(f"  {s['run_s']:.1f} s, {s['residual_evaluations']} residuals, "
-              f"loss {s['loss']:.6g} (jaxmr {result.loss:.6g})")  # fmt: skip
-        # Issue 9's figure: scipy's time (its residual's compilation included, as
-        # jaxmr's fit includes its own) over jaxmr's, to the same loss.
-        figures["speedup_vs_scipy_fd"] = (s["compile_s"] + s["run_s"]) / figures["fit"][
-            "total_s"
-        ]
-        figures["speedup_vs_scipy_fd_compiled"] = s["run_s"] / (
-            figures["fit"]["total_s"] - figures["fit"]["compile_s_estimate"]
-        )
-        print(f"  speedup_vs_scipy_fd {figures['speedup_vs_scipy_fd']:.2f} "
-              f"({figures['speedup_vs_scipy_fd_compiled']:.2f} without compiling)")  # fmt: skip
+    if scipy_model is not None:
+        systems["scipy"] = scipy_model
 
     # The fitted model on the whole training record (all five periods).
     y_fit_train = from_rest(result.model, train_signal, train.u.size, args.substeps)

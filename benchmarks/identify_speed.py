@@ -15,11 +15,15 @@ Measures, in one run:
   files converted to canonical CSV, compilation included, and the chosen model's
   median NRMSE on all 30;
 - the NEES record (`nees`): `jaxmr fit` on its first two thirds, and the last
-  third's NRMSE (means removed) against Spencer 1997's published parameters.
+  third's NRMSE (means removed) against Spencer 1997's published parameters; again
+  with `--channel-delay`;
+- `speedup_vs_scipy_fd` (`boucwen`): on the Bouc–Wen benchmark's training record,
+  `fit_system` against scipy's least_squares with finite differences to the same
+  loss, compilation included on both sides (`boucwen_benchmark.against_scipy`).
 
     python benchmarks/identify_speed.py --json benchmarks/results/identify_speed.json
 
-`--sections` picks parts (default all: layouts,joint,auto,nees; the command-line runs
+`--sections` picks parts (default all: layouts,joint,auto,nees,boucwen; the command-line runs
 take minutes). Reads the data from ../shared/data beside the repository.
 """
 
@@ -60,10 +64,12 @@ from jaxmr._parameter import free_filter  # noqa: E402
 ROOT = Path(__file__).resolve().parents[1]
 UTFSM = ROOT.parent / "shared" / "data" / "utfsm_mr_damper" / "sine"
 NEES = ROOT.parent / "shared" / "data" / "nees_dyke_mr_damper" / "ranran_50.csv"
+BOUCWEN = ROOT.parent / "shared" / "data" / "boucwen_benchmark"
 
 
-def _fit_command(files, out):
-    """`jaxmr fit --out OUT FILES` (default: auto) in a fresh process; its seconds."""
+def _fit_command(files, out, *options):
+    """`jaxmr fit --out OUT [options] FILES` (default: auto) in a fresh process; its
+    seconds."""
     start = time.perf_counter()
     subprocess.run(
         [
@@ -73,6 +79,7 @@ def _fit_command(files, out):
             "fit",
             "--out",
             str(out),
+            *options,
             *map(str, files),
         ],
         check=True,
@@ -171,11 +178,20 @@ def nees():
         seconds = _fit_command([path], out)
         model = jaxmr.load_model(out)
         report = json.loads(out.read_text())["report"]
+        # The same with the force channel's delay fitted too (`--channel-delay`).
+        out = Path(folder) / "nees_delay.json"
+        delay_seconds = _fit_command([path], out, "--channel-delay")
+        delayed = jaxmr.load_model(out)
+        delay_report = json.loads(out.read_text())["report"]
     score = lambda m: float(
         jaxmr.record_nrmse(m, [record], discard=split, remove_mean=True)[0]
     )
     fitted, published = score(model), score(jaxmr.spencer_1997())
     result = {
+        "nees_channel_delay_seconds": delay_seconds,
+        "nees_channel_delay_choice": delay_report["template"],
+        "nees_channel_delay_s": float(np.asarray(delayed.delay)),
+        "nees_channel_delay_held_out_nrmse": score(delayed),
         "nees_seconds": seconds,
         "nees_choice": report["template"],
         "nees_held_out_nrmse": fitted,
@@ -187,13 +203,31 @@ def nees():
     return result
 
 
+def boucwen():
+    """The Bouc–Wen benchmark oscillator fitted by `fit_system` to the five periods of
+    its training record, against scipy's least_squares with finite differences on the
+    same residual from the same start (`boucwen_benchmark.against_scipy`)."""
+    from boucwen_benchmark import against_scipy
+
+    train = jd.load_boucwen_benchmark_train(BOUCWEN / "train.h5")
+    _, _, _, figures = against_scipy(train, periods=5, substeps=20)
+    out = {
+        "speedup_vs_scipy_fd": figures["speedup_vs_scipy_fd"],
+        "speedup_vs_scipy_fd_compiled": figures["speedup_vs_scipy_fd_compiled"],
+        "boucwen_fit": {k: v for k, v in figures["fit"].items() if k != "values"},
+        "boucwen_scipy": figures["scipy"],
+    }
+    print(out, flush=True)
+    return out
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--json", type=Path, help="write the figures here")
     parser.add_argument(
         "--sections",
-        default="layouts,joint,auto,nees",
-        help="comma-separated: layouts, joint, auto, nees (default: all)",
+        default="layouts,joint,auto,nees,boucwen",
+        help="comma-separated: layouts, joint, auto, nees, boucwen (default: all)",
     )
     args = parser.parse_args()
     sections = set(args.sections.split(","))
@@ -223,7 +257,8 @@ def main():
         figures.update(auto(experiments, discard, smoothing))
     if "nees" in sections:
         figures.update(nees())
-    figures["speedup_vs_scipy_fd"] = None  # not measured yet (see benchmarks/README)
+    if "boucwen" in sections:
+        figures.update(boucwen())
     write_figures(figures, args.json)
 
 
