@@ -59,7 +59,8 @@ def test_bouc_wen_ranks_first_on_held_out_data(brake):
     # Bingham has no memory: the brake's torque flips about 0.5° after each reversal,
     # which no function of the velocity alone follows.
     assert bingham.median_test_nrmse > 0.3
-    assert (bouc_wen.num_parameters, bingham.num_parameters) == (7, 4)
+    # Bouc–Wen: α, c0 laws (4), β, γ, n, the accumulator's k0 and f0.
+    assert (bouc_wen.num_parameters, bingham.num_parameters) == (9, 4)
     assert bouc_wen.fit_time > 0 and bouc_wen.test_names == ("0.5 A",)
     assert isinstance(bouc_wen.model, jaxmr.BoucWen)
     # The score is the error of `predict` on the held-out experiment.
@@ -130,6 +131,28 @@ def test_bouc_wen_template_fixes_the_redundancy(brake):
     assert 1.0 < lo < hi < 1.4, scales.hysteretic_force
     assert scales.yield_force[0] < 0.1 < 1.0 < scales.viscous[0], scales
     np.testing.assert_allclose(model.alpha.a.value(), lo)
+
+
+def test_templates_fit_an_accumulators_offset(brake):
+    # A pre-charged accumulator pushes with a constant force (and a small
+    # stiffness): 30 % of the torque amplitude here, in every experiment. The
+    # template fits it with the hysteresis (without the offset it could not: the
+    # loop would be shifted by 0.3 of its amplitude).
+    _, _, experiments = brake
+    shifted = []
+    for e in experiments:
+        offset = 0.3 * 0.5 * np.ptp(np.asarray(e.force))
+        shifted.append(
+            jaxmr.data.Experiment(
+                e.t, e.x, e.v, e.current, np.asarray(e.force) + offset,
+                name=e.name, rotary=True,
+            )
+        )  # fmt: skip
+    result = jaxmr.fit(
+        MODEL_TEMPLATES["bouc_wen"](shifted), shifted, progress=False, max_steps=40
+    )
+    # At the noise (1 %), with the margin of the held-out test above.
+    assert np.max(result.nrmse) < 2 * NOISE, result.nrmse
 
 
 def test_candidate_errors(brake):
