@@ -4,7 +4,7 @@ search at equal road simulations, against constant currents, the classical laws 
 optimal schedule; robust tuning over damper samples; closed-loop speed against a
 hand-written scan kernel.
 
-    python benchmarks/quarter_car_control.py --json benchmarks/results/quarter_car.json
+    python benchmarks/quarter_car_control.py --json benchmarks/results/quarter_car_control.json
     python benchmarks/quarter_car_control.py --json /tmp/qc.json --quick   # smoke test
     python benchmarks/quarter_car_control.py --json OUT --all-laws  # tune every law too
 
@@ -131,6 +131,18 @@ TEMPERATURE = (0.1, 0.05)
 # viscous laws scaled by independent log-normal factors (an assumption of this
 # benchmark, not a measured spread).
 SPREAD = 0.25
+# Robust tuning weighs the worst third of the damper samples (CVaR; 2 of 6), on the
+# first ROBUST_ROADS training roads (samples x roads runs per step), Adam's rate
+# decayed geometrically over the steps.
+WORST_SHARE = 1 / 3
+ROBUST_ROADS, ROBUST_RATE = 4, (0.05, 0.005)
+# The constrained law by dual ascent on the Lagrangian of the mean tyre load (session
+# 8): rounds of `tune` on comfort + lambda (tyre / limit - 1) with the multiplier
+# raised by RHO x the training roads' violation after each round. A round's law counts
+# as feasible when its training tyre load is at most MARGIN x the limit: the held-out
+# roads' tyre load ran 2.6 % above the training roads' in a probe, so 3 % is kept
+# aside for them.
+LAGRANGE_START, RHO, ROUNDS, MARGIN = 0.3, 3.0, 4, 0.97
 
 
 def weights(p):
@@ -177,6 +189,11 @@ def main():
     parser.add_argument("--steps", type=int, default=40)
     parser.add_argument("--rich-steps", type=int, default=80)
     parser.add_argument("--budget-factor", type=float, default=10.0)
+    # The searches' budget: `budget_factor` x the gradient's simulations, and at least
+    # this many, so that CMA-ES runs long enough to show where it goes.
+    parser.add_argument("--search-budget", type=int, default=4840)
+    parser.add_argument("--round-steps", type=int, default=30)
+    parser.add_argument("--robust-steps", type=int, default=60)
     parser.add_argument("--samples", type=int, default=6)
     parser.add_argument("--all-laws", action="store_true")
     parser.add_argument("--skip-speed", action="store_true")
@@ -184,6 +201,7 @@ def main():
     if args.quick:
         args.duration, args.train, args.eval = 2.0, 2, 2
         args.steps, args.rich_steps, args.budget_factor, args.samples = 4, 6, 2.0, 2
+        args.search_budget, args.round_steps, args.robust_steps = 0, 4, 4
 
     car = jaxmr.passenger_car(jaxmr.passenger_car_mr_damper())
     train = roads(range(args.train), args.duration)
@@ -301,13 +319,17 @@ def main():
     start = jaxmr.ForceFeedback.mlp(
         scales, I_MAX, features=RICH_FEATURES, width=RICH_WIDTH, depth=1
     )
+    # `tune` stops on its own when the hard law has not improved for `patience` (its
+    # default, 10) steps: on this landscape its best comes within the first few steps
+    # (session 8: the relaxed gradient's norm then spikes to 1e2-1e3 and the descent
+    # stops finding better hard laws), so the simulations it spends are the ones its
+    # result cost.
     rich_settings = dict(
         parameters=weights,
         log_space=False,
         temperature=TEMPERATURE,
         steps=args.rich_steps,
         learning_rate=0.03,
-        patience=args.rich_steps,
         check_every=2,
         validation=held,
         progress=False,
@@ -315,22 +337,67 @@ def main():
     rich = jaxmr.tune(car, start, train, T, **rich_settings)
     record("rich law (comfort)", rich)
     table["rich law (tuned, comfort)"] = evaluate(rich.controller)
+
+    # The constrained law: dual ascent on the Lagrangian of the mean tyre load over the
+    # training roads (a per-road penalty, session 4, held every road under the limit
+    # and ended 6.5 % inside it, less comfortable than the best feasible constant).
     # Road holding needs the wheel's motion too (groundhook's signal).
     features_c = RICH_FEATURES + ("wheel_velocity",)
-    start_c = jaxmr.ForceFeedback.mlp(
+    law_c = jaxmr.ForceFeedback.mlp(
         jaxmr.feature_scales(passive, features_c),
         I_MAX,
         features=features_c,
         width=RICH_WIDTH,
         depth=1,
     )
-    rich_c = jaxmr.tune(car, start_c, train, T, objective=constrained, **rich_settings)
-    record("rich law (constrained)", rich_c)
-    table["rich law (tuned, constrained)"] = evaluate(rich_c.controller)
+    multiplier, rounds, spent_c = LAGRANGE_START, [], 0
+    for k in range(1 if args.quick else ROUNDS):
+
+        def lagrangian(sol, multiplier=multiplier):
+            ratio = jaxmr.rms(sol["tyre_force"]) / car.static_load
+            # The comfort scale (0.9 m/s²) makes the multiplier dimensionless.
+            return jaxmr.comfort(sol) + multiplier * 0.9 * (ratio / train_limit - 1.0)
+
+        result = jaxmr.tune(
+            car,
+            law_c,
+            train,
+            T,
+            **(
+                rich_settings
+                | dict(
+                    objective=lagrangian,
+                    steps=args.round_steps,
+                    patience=args.round_steps,
+                    validation=None,
+                )
+            ),
+        )
+        spent_c += result.simulations
+        law_c = result.controller
+        on_train = jaxmr.evaluate(car, law_c, train, T, metrics)
+        row = {
+            "multiplier": multiplier,
+            "train_comfort": float(np.mean(on_train["comfort"])),
+            "train_tyre_over_limit": float(np.mean(on_train["tyre_load"]))
+            / train_limit,
+            "simulations": result.simulations,
+        }
+        rounds.append((row, law_c))
+        print(f"constrained round {k}: {row}", flush=True)
+        multiplier = max(0.0, multiplier + RHO * (row["train_tyre_over_limit"] - 1))
+    ok_rounds = [r for r in rounds if r[0]["train_tyre_over_limit"] <= MARGIN]
+    chosen = min(ok_rounds or rounds, key=lambda r: r[0]["train_comfort"])
+    rich_c = chosen[1]
+    table["rich law (tuned, constrained)"] = evaluate(rich_c)
+    out["constrained_rounds"] = [r[0] for r in rounds] + [
+        {"chosen_round": rounds.index(chosen), "simulations": spent_c}
+    ]
 
     # Derivative-free searches on the same law, loss and roads, with `budget_factor`
-    # times the gradient's simulations: how many they need to reach its loss.
-    budget = int(args.budget_factor * rich.simulations)
+    # times the gradient's simulations (at least `search_budget`): how many they need
+    # to reach its loss, and where CMA-ES goes with the rest.
+    budget = max(int(args.budget_factor * rich.simulations), args.search_budget)
     runs = args.train
     cma = jaxmr.cma_es(
         car,
@@ -341,10 +408,10 @@ def main():
         log_space=False,
         sigma=0.2,
         simulations=budget,
-        target=rich.loss,
         validation=held,
     )
     record("rich law by CMA-ES (comfort)", cma)
+    table["rich law (CMA-ES, comfort)"] = evaluate(cma.controller)
     # Simulations per generation, from what CMA-ES spent (its start: one evaluation).
     per_generation = (cma.simulations - runs) // max(len(cma.history) - 1, 1)
     cma_needed = first_reaching(
@@ -379,6 +446,8 @@ def main():
         ),
         "cmaes_best_train_loss": cma.loss,
         "cmaes_held_out_loss": cma.held_out_loss,
+        "cmaes_history": list(cma.history),
+        "cmaes_simulations_per_generation": per_generation,
         "random_search_simulations_to_reach": search_needed,
         "random_search_train_loss_at_equal_simulations": at_budget(
             search.history, lambda k: (k + 1) * runs
@@ -386,38 +455,77 @@ def main():
         "random_search_best_train_loss": search.loss,
         "random_search_held_out_loss": search.held_out_loss,
         "gradient_held_out_loss": rich.held_out_loss,
+        "gradient_history": list(rich.history),
     }
 
     def ratio(needed):
-        # Not reached within the budget: the ratio is at least the budget factor.
-        return needed / rich.simulations if needed else float(args.budget_factor)
+        # Not reached within the budget: the ratio is at least budget / gradient's.
+        return needed / rich.simulations if needed else budget / rich.simulations
 
-    # Robust tuning: the rich law over damper samples, against the same law tuned on
-    # the nominal damper with the same settings (roads, steps), both scored on every
-    # sample's held-out roads. Two training roads keep the samples x roads batch small.
+    # Robust tuning. The controller inverts the nominal damper (`model=`), as a real
+    # one inverts its nominal fit, while the simulated unit is drawn from the spread.
+    # The linear law (3 gains) is first tuned from zero on the nominal damper; then
+    # two continuations with the same settings differ only in their loss: the robust
+    # one over every damper sample, weighing the worst third (`worst_share`), the
+    # nominal one on the nominal damper again (equal tuning effort). Both are scored
+    # on every sample's held-out roads. Started from zero, the robust tune ended worse
+    # than the nominal law even on its own training objective (session 8: the
+    # gradient's result depends on which early step the hard check catches), which
+    # hides the effect of the loss's aggregate.
     systems, factors = damper_samples(car, args.samples, jax.random.key(7))
-    two = jax.tree.map(lambda x: x[:2], train)
-    robust_settings = rich_settings | {"steps": args.rich_steps // 2}
-    robust = jaxmr.tune(car, start, two, T, samples=systems, **robust_settings)
-    record("rich law, robust over damper samples", robust)
-    nominal = jaxmr.tune(car, start, two, T, **robust_settings)
-    record("rich law, nominal damper, same settings", nominal)
+    train_r = jax.tree.map(lambda x: x[:ROBUST_ROADS], train)
+    linear_start = jaxmr.ForceFeedback.linear(
+        scales, I_MAX, features=RICH_FEATURES, model=car.damper
+    )
+    stage_1 = rich_settings | dict(
+        steps=args.robust_steps,
+        patience=args.robust_steps,
+        learning_rate=ROBUST_RATE,
+        validation=None,
+    )
+    first = jaxmr.tune(car, linear_start, train_r, T, **stage_1)
+    record("linear law, nominal damper (stage 1)", first)
+    stage_2 = stage_1 | dict(
+        steps=args.robust_steps // 2,
+        patience=args.robust_steps // 2,
+        learning_rate=ROBUST_RATE[0] / 2.5,
+    )
+    robust = jaxmr.tune(
+        car,
+        first.controller,
+        train_r,
+        T,
+        samples=systems,
+        worst_share=WORST_SHARE,
+        **stage_2,
+    )
+    record("linear law, robust continuation", robust)
+    nominal = jaxmr.tune(car, first.controller, train_r, T, **stage_2)
+    record("linear law, nominal continuation", nominal)
 
-    def per_sample(controller):
+    def per_sample(controller, on=held):
         values = []
         for j in range(args.samples):
             system = jax.tree.map(lambda x, j=j: x[j], systems)
-            values.append(evaluate(controller, system)["comfort"])
+            values.append(
+                float(np.mean(jaxmr.evaluate(system, controller, on, T)["comfort"]))
+            )
         return values
 
     nominal_scores, robust_scores = (
-        per_sample(rich.controller),
+        per_sample(nominal.controller),
         per_sample(robust.controller),
     )
+    first_scores = per_sample(first.controller)
     out["robust"] = {
+        "stage_1_law_comfort_per_sample": first_scores,
         "factors_yield_viscous": factors.tolist(),
         "nominal_law_comfort_per_sample": nominal_scores,
         "robust_law_comfort_per_sample": robust_scores,
+        "nominal_law_train_per_sample": per_sample(nominal.controller, train_r),
+        "robust_law_train_per_sample": per_sample(robust.controller, train_r),
+        "nominal_values": [np.asarray(v).tolist() for v in nominal.values],
+        "robust_values": [np.asarray(v).tolist() for v in robust.values],
     }
 
     out["table"] = table
@@ -465,6 +573,8 @@ def main():
         "best_law_comfort": best_law,
         "wk_rms_reduction_comfort": 1 - rich_row["comfort"] / base,
         "wk_rms_reduction_comfort_best_law": 1 - table[best_law]["comfort"] / base,
+        "wk_rms_reduction_comfort_cmaes": 1
+        - table["rich law (CMA-ES, comfort)"]["comfort"] / base,
         "wk_rms_reduction_comfort_vs_passive_on": 1
         - rich_row["comfort"] / passive_on["comfort"],
         "best_constant_constrained": best_feasible_constant,
@@ -481,6 +591,8 @@ def main():
         "random_search_reached_gradient_loss": search_needed is not None,
         "skyhook_from_far_start": far.loss / min(grid_losses) - 1,
         "robust_worst_case_gain": max(robust_scores) / max(nominal_scores),
+        "robust_mean_gain": float(np.mean(robust_scores) / np.mean(nominal_scores)),
+        "robust_worst_case_gain_vs_stage_1": max(robust_scores) / max(first_scores),
         "bound_reduction_comfort": float(np.mean(bound_ratios)),
     }
     if "speed" in out:

@@ -452,6 +452,60 @@ def test_force_feedback_mlp_starts_at_zero_with_a_gradient():
     assert np.any(np.abs(np.asarray(grads[3])) > 0)
 
 
+def test_force_feedback_inverts_its_own_model():
+    # With `model`, the law's yield force and band are the model's, read at the
+    # device's state: a damper whose yield law is twice the device's. The linear law
+    # is then skyhook with c_sky = w F_y(model) / s projected on the model's band (a
+    # hand computation of the band fraction here), not on the device's.
+    law = _with_weights(
+        jaxmr.ForceFeedback.linear(FEATURE_SCALES, I_MAX, features=FEATURES),
+        [0.3, 0.0, 0.0],
+    )
+    h = DAMPER
+    model = jaxmr.Damper(
+        eqx.tree_at(lambda m: (m.alpha.a, m.alpha.b), h, (2 * h.alpha.a, 2 * h.alpha.b))
+    )
+    mine = eqx.tree_at(lambda c: c.model, law, model, is_leaf=lambda x: x is None)
+    p = plant(x=0.002, v=-0.05, z=-0.001)
+    seen = p.with_model(model)
+    f_y = float(seen.yield_force(jnp.asarray(I_MAX)))
+    assert f_y == pytest.approx(2 * float(p.yield_force(jnp.asarray(I_MAX))), rel=1e-12)
+    # (This Bouc-Wen's z saturates far out: F_y is 634 kN, so a small body velocity
+    # asks for a force inside the band, 54 % of the way up the model's, 15 % of the
+    # device's.)
+    m = measurement(body_velocity=-3e-4)
+    f0, f1 = (float(f) for f in seen.band(jnp.asarray(I_MAX)))
+    desired = f_y * 0.3 * -3e-4 / FEATURE_SCALES[0]
+    expected = I_MAX * float(np.clip((desired - f0) / (f1 - f0), 0.0, 1.0))
+    assert 0 < expected < I_MAX  # inside the band: the model's numbers matter
+    assert command(mine, m, p=p) == pytest.approx(expected, rel=1e-12)
+    assert abs(command(mine, m, p=p) - command(law, m, p=p)) > 0.05 * I_MAX
+    # The device as its own model is the law without one.
+    same = eqx.tree_at(lambda c: c.model, law, p.damper, is_leaf=lambda x: x is None)
+    assert command(same, m, p=p) == command(law, m, p=p)
+
+
+def test_force_feedback_model_must_match_the_device():
+    law = jaxmr.ForceFeedback.linear(
+        FEATURE_SCALES, I_MAX, features=FEATURES, model=jaxmr.Damper(DAMPER)
+    )
+    # A Bingham device has no hysteretic state for the Bouc–Wen model to read.
+    other = DamperPlant(
+        jaxmr.Damper(jaxmr.Bingham(f_c=500.0, c0=1000.0)),
+        jnp.zeros(0),
+        jnp.asarray(0.0),
+        jnp.asarray(0.1),
+    )
+    with pytest.raises(ValueError, match="states must match"):
+        law(measurement(), (), other)
+    # (Under the tests' jaxtyping hook the annotation refuses it first, also a
+    # TypeError; without it, `__check_init__` names the argument.)
+    with pytest.raises(TypeError):
+        jaxmr.ForceFeedback.linear(
+            FEATURE_SCALES, I_MAX, features=FEATURES, model=DAMPER
+        )
+
+
 def test_force_feedback_bad_input_is_named():
     with pytest.raises(ValueError, match="one size per feature"):
         jaxmr.ForceFeedback.linear((0.1, 1.0), I_MAX, features=FEATURES)

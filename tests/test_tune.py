@@ -286,20 +286,25 @@ def test_bad_schedules_are_named(settings, message):
         )
 
 
+def _scaled(f):
+    """The car with its damper's yield law scaled by `f`."""
+    law = CAR.damper.hysteresis.alpha
+    return eqx.tree_at(
+        lambda s: (s.damper.hysteresis.alpha.a, s.damper.hysteresis.alpha.b),
+        CAR,
+        (f * law.a, f * law.b),
+    )
+
+
+def _two_samples():
+    return jax.vmap(_scaled)(jnp.array([0.6, 1.5]))
+
+
 def test_tuning_over_damper_samples_averages_over_them():
     # Two cars whose damper's yield law is scaled by 0.6 and 1.5: the loss of a tune
     # over them is the mean over both samples and both roads, each computed again
     # here by `evaluate`; the tuned pair is the nominal car with the tuned law.
-    def scaled(f):
-        law = CAR.damper.hysteresis.alpha
-        return eqx.tree_at(
-            lambda s: (s.damper.hysteresis.alpha.a, s.damper.hysteresis.alpha.b),
-            CAR,
-            (f * law.a, f * law.b),
-        )
-
-    factors = jnp.array([0.6, 1.5])
-    samples = jax.vmap(scaled)(factors)
+    samples = _two_samples()
     result = jaxmr.tune(
         CAR,
         FAR,
@@ -311,7 +316,7 @@ def test_tuning_over_damper_samples_averages_over_them():
         progress=False,
     )
     per_sample = [
-        float(np.mean(jaxmr.evaluate(scaled(f), FAR, TRAIN, T)["comfort"]))
+        float(np.mean(jaxmr.evaluate(_scaled(f), FAR, TRAIN, T)["comfort"]))
         for f in (0.6, 1.5)
     ]
     assert result.simulations == 2 * 2
@@ -320,6 +325,102 @@ def test_tuning_over_damper_samples_averages_over_them():
     assert abs(result.initial_loss - mean_comfort(FAR)) > 1e-3 * mean_comfort(FAR)
     nominal = CAR.damper.hysteresis.alpha.a
     assert float(result.system.damper.hysteresis.alpha.a) == float(nominal)
+
+
+def test_worst_share_weights_are_the_cvar():
+    # k = share x S of S samples: the j-th worst weighs clip(k - j, 0, 1) / k.
+    from jaxmr._tune.loss import mean_or_inf, worst_share_weights
+
+    losses = jnp.array([1.0, 3.0, 2.0])
+    for share, expected in (
+        (1.0, [1 / 3, 1 / 3, 1 / 3]),
+        (1 / 3, [0.0, 1.0, 0.0]),
+        (0.5, [0.0, 1 / 1.5, 0.5 / 1.5]),
+    ):
+        w = np.asarray(worst_share_weights(losses, share))
+        np.testing.assert_allclose(w, expected, rtol=1e-14, atol=1e-15)
+    # Samples x roads (the last road padding): each sample's mean over its valid
+    # roads (2, 4, 3), then the worst half of the three (4 and half of 3).
+    values = jnp.array([[1.0, 3.0, 50.0], [3.0, 5.0, 50.0], [2.0, 4.0, 50.0]])
+    valid = jnp.array([True, True, False])
+    value = float(mean_or_inf(values, valid, 0.5))
+    assert value == pytest.approx((4.0 + 0.5 * 3.0) / 1.5, rel=1e-14)
+    assert float(mean_or_inf(values.at[0, 1].set(jnp.nan), valid, 0.5)) == np.inf
+
+
+def test_worst_share_tunes_the_worst_sample():
+    # Of two samples, worst_share = 0.5 is the worse one alone: its value is that
+    # sample's mean over the roads, and its gradient (relaxed skyhook, T = 0.1) that
+    # of the loss over that sample only, computed separately (equal to 1e-12: the
+    # same runs, summed in another order).
+    from jaxmr._tune.common import prepare
+    from jaxmr._tune.loss import loss_and_grad
+
+    samples = _two_samples()
+    law = jaxmr.Skyhook(20_000.0, 1.0, 0.1)
+
+    def value_and_grad(share, these):
+        _, setup, pair, u, batch = prepare(
+            "tune",
+            CAR,
+            law,
+            TRAIN,
+            these,
+            c_sky,
+            True,
+            None,
+            jaxmr.comfort,
+            T,
+            1e-3,
+            4,
+            1,
+            share,
+        )
+        value, grads, per_run = loss_and_grad(u, pair, these, batch, setup)
+        return float(value), float(grads[0]), np.asarray(per_run)
+
+    value, grad, per_run = value_and_grad(0.5, samples)
+    worst = int(np.argmax(per_run.mean(axis=1)))
+    alone = jax.tree.map(lambda x: x[worst : worst + 1], samples)
+    value_1, grad_1, _ = value_and_grad(1.0, alone)
+    assert value == pytest.approx(per_run[worst].mean(), rel=1e-14)
+    assert value == pytest.approx(value_1, rel=1e-12)
+    assert grad == pytest.approx(grad_1, rel=1e-12)
+    # ... and not the mean's: the samples differ by more than 1 %.
+    assert value > 1.01 * per_run.mean()
+
+
+def test_worst_share_is_checked():
+    for share, error, message in (
+        (0.0, ValueError, r"must lie in \(0, 1\]"),
+        (1.5, ValueError, r"must lie in \(0, 1\]"),
+        # (A string is refused by the annotation under the tests' jaxtyping hook,
+        # by `check_worst_share` without it: both TypeErrors.)
+        ("max", TypeError, None),
+    ):
+        with pytest.raises(error, match=message):
+            jaxmr.tune(
+                CAR,
+                FAR,
+                TRAIN,
+                T,
+                parameters=c_sky,
+                samples=_two_samples(),
+                worst_share=share,
+                steps=1,
+                progress=False,
+            )
+    with pytest.raises(ValueError, match="needs `samples=`"):
+        jaxmr.tune(
+            CAR,
+            FAR,
+            TRAIN,
+            T,
+            parameters=c_sky,
+            worst_share=0.5,
+            steps=1,
+            progress=False,
+        )
 
 
 def test_padded_roads_leave_the_mean():

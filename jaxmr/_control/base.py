@@ -39,6 +39,32 @@ class DamperPlant(eqx.Module):
         model's `yield_force` (`None` when the model states none)."""
         return self.damper.hysteresis.at(current).yield_force()
 
+    def with_model(self, model: Damper | None) -> "DamperPlant":
+        """The plant as a controller's own damper model sees it: `model` (a `Damper`
+        of the same hysteresis family) in place of the device, at the device's present
+        state and motion; `None` leaves the device itself (a perfect inverse model).
+
+        A real controller inverts a nominal model, not the unit it drives: with
+        `model` fixed and the simulated damper drawn from a spread (robust tuning),
+        the law's force request and the force delivered differ as they would on a car.
+        """
+        if model is None:
+            return self
+        if not isinstance(model, Damper):
+            raise TypeError(
+                "A controller's inverse `model` must be a jaxmr Damper (e.g. the "
+                f"nominal fit's), got {type(model).__name__}."
+            )
+        mine = model.hysteresis.state_names
+        theirs = self.damper.hysteresis.state_names
+        if mine != theirs:
+            raise ValueError(
+                "A controller's inverse `model` reads the device's hysteresis state, "
+                f"so their states must match: the model has {mine}, the simulated "
+                f"damper {theirs}. Use a model of the device's family."
+            )
+        return DamperPlant(model, self.state, self.x, self.v)
+
     def current_for_force(self, force: Scalar, i_max: Scalar) -> Scalar:
         r"""Inverse damper model: the current [A] in $[0, I_\max]$ whose force is
         closest to `force` [N].

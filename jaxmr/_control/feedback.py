@@ -9,6 +9,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._custom_types import Array, Float
+from .._damper import Damper
 from .._misc import as_float_array, check_concrete
 from .base import AbstractController
 from .smooth import check_range_and_temperature, clip_command, command_for_force
@@ -69,6 +70,10 @@ class ForceFeedback(AbstractController):
     - `scales`: $s_k$, one per feature, in the feature's unit (e.g. m/s), > 0.
     - `i_max`: the top of the current range $I_\max$ [A].
     - `temperature`: $T \ge 0$; 0 (default) is the hard law.
+    - `model`: the damper the law inverts (its $F_y$ and its band, read at the
+      device's present state: `DamperPlant.with_model`), e.g. the nominal fit while
+      the simulated unit is a sample drawn around it; `None` (default) inverts the
+      simulated damper itself, a perfect model.
     """
 
     network: eqx.Module
@@ -76,8 +81,14 @@ class ForceFeedback(AbstractController):
     i_max: Float[Array, ""] = eqx.field(converter=as_float_array)
     temperature: Float[Array, ""] = eqx.field(converter=as_float_array, default=0.0)
     features: tuple[str, ...] = eqx.field(static=True, default=DEFAULT_FEATURES)
+    model: Damper | None = None
 
     def __check_init__(self):
+        if self.model is not None and not isinstance(self.model, Damper):
+            raise TypeError(
+                "ForceFeedback: `model` must be a jaxmr Damper (the damper the law "
+                f"inverts) or None, got {type(self.model).__name__}."
+            )
         if self.scales.shape != (len(self.features),):
             raise ValueError(
                 f"ForceFeedback: `scales` must hold one size per feature "
@@ -99,6 +110,7 @@ class ForceFeedback(AbstractController):
         *,
         features: tuple[str, ...] = DEFAULT_FEATURES,
         temperature=0.0,
+        model: Damper | None = None,
     ) -> "ForceFeedback":
         """$g(\\varphi) = w \\cdot \\varphi$, every gain $w_k$ zero."""
         return cls(
@@ -107,6 +119,7 @@ class ForceFeedback(AbstractController):
             i_max=as_float_array(i_max),
             temperature=as_float_array(temperature),
             features=tuple(features),
+            model=model,
         )
 
     @classmethod
@@ -120,6 +133,7 @@ class ForceFeedback(AbstractController):
         depth: int = 2,
         key: jax.Array | None = None,
         temperature=0.0,
+        model: Damper | None = None,
     ) -> "ForceFeedback":
         """$g(\\varphi) = w \\cdot \\varphi + \\mathrm{MLP}(\\varphi)$: the linear law plus an
         `equinox.nn.MLP` with `depth` hidden layers of `width` tanh units, $w$ and the
@@ -149,6 +163,7 @@ class ForceFeedback(AbstractController):
             i_max=as_float_array(i_max),
             temperature=as_float_array(temperature),
             features=tuple(features),
+            model=model,
         )
 
     @staticmethod
@@ -175,6 +190,7 @@ class ForceFeedback(AbstractController):
         return yield_force * self.network(phi)  # pyright: ignore[reportCallIssue]
 
     def __call__(self, measurement, state, plant):
+        plant = plant.with_model(self.model)
         yield_force = plant.yield_force(self.i_max)
         if yield_force is None:
             raise TypeError(

@@ -50,17 +50,40 @@ def prepare(
     dt,
     substeps,
     delay,
+    worst_share: float = 1.0,
 ):
     """Every tuner's start: the checked inputs, the runs one evaluation simulates, the
     static `Setup` of the loss, the pair, the optimiser's starting variables and the
     `road_batch` of the roads."""
     runs = check_inputs(system, controller, roads, samples)
+    share = check_worst_share(worst_share, samples, who)
     where = as_tuple_where(parameters)
     space = as_space(log_space, bounds, who)
-    setup = Setup(space, where, objective, duration, dt, substeps, delay)
+    setup = Setup(space, where, objective, duration, dt, substeps, delay, share)
     pair = (system, controller)
     u0 = from_values(initial_values(pair, where, log_space, who), space, who)
     return runs, setup, pair, u0, road_batch(roads)
+
+
+def check_worst_share(worst_share, samples, who: str) -> float:
+    """`worst_share` as a float in (0, 1], refused without `samples` unless 1."""
+    if isinstance(worst_share, bool) or not isinstance(worst_share, (int, float)):
+        raise TypeError(
+            f"{who}: `worst_share` must be a number in (0, 1], got "
+            f"{type(worst_share).__name__}."
+        )
+    share = float(worst_share)
+    if not 0 < share <= 1:
+        raise ValueError(
+            f"{who}: `worst_share` must lie in (0, 1] (1: the mean over the damper "
+            f"samples; 1/S: the worst of S samples), got {worst_share}."
+        )
+    if share < 1 and samples is None:
+        raise ValueError(
+            f"{who}: `worst_share` < 1 weighs the worst damper samples, so it needs "
+            "`samples=` (a batch of systems, e.g. from `jaxmr.sample_systems`)."
+        )
+    return share
 
 
 def set_temperature(controller, temperature):

@@ -62,6 +62,7 @@ def tune(
     check_every: int = 5,
     validation=None,
     samples: AbstractSystem | None = None,
+    worst_share: float = 1.0,
     dt: float = 1e-3,
     substeps: int = 4,
     delay: int = 1,
@@ -110,6 +111,11 @@ def tune(
       fit's covariance, `jaxmr.sample_systems`) to tune over instead of `system`
       alone: the loss is the mean over every sample and road (robust tuning). The
       tuned parameters are set in every sample.
+    - `worst_share`: with `samples`, the loss is the mean over the worst
+      `worst_share` of the samples (each sample's loss its mean over the roads): the
+      conditional value at risk (CVaR) of the spread. 1 (default) is the mean over
+      every sample; $1/S$ of $S$ samples the worst one alone; 0.3 the worst 30 %.
+      Worst-case tuning: a law that must hold on every unit, not on the average one.
     - `dt`, `substeps`, `delay`: as `simulate_system`.
     - `log_space`: optimise logarithms (default: positive parameters, relative
       steps); `False` optimises the values (signed weights, `CurrentSchedule.logits`).
@@ -144,6 +150,7 @@ def tune(
         dt,
         substeps,
         delay,
+        worst_share,
     )
     report = printer(progress, "tune step")
 

@@ -29,6 +29,9 @@ class Setup:
     dt: float
     substeps: int
     delay: int
+    # The share of damper samples whose mean the loss is (1: every sample; see
+    # `worst_share_weights`).
+    worst_share: float = 1.0
 
 
 def _one_run(u, system, controller, road, setup: Setup):
@@ -64,14 +67,38 @@ def _over_runs(fn, system, samples, roads):
     return eqx.filter_vmap(over_roads)(samples)
 
 
-def mean_or_inf(values, valid=None):
-    """The mean over the runs (the `valid` ones: roads on the last axis), or inf."""
+def worst_share_weights(per_sample, share: float):
+    r"""Weights $w_s$ (summing to 1) that make $\sum_s w_s J_s$ the mean of the worst
+    `share` of the samples' losses $J_s$: the conditional value at risk (CVaR) of the
+    uniform distribution over the samples. With $S$ samples and $k = \text{share}\,S$,
+    the $j$-th worst ($j = 0, 1, \ldots$) weighs $\mathrm{clip}(k - j, 0, 1)/k$: `share`
+    1 is the mean, $1/S$ the worst sample alone, and a fractional $k$ weighs the last
+    sample it reaches in part. The ranking is held constant in the gradient (the CVaR's
+    gradient wherever no two samples tie)."""
+    count = per_sample.shape[0]
+    k = share * count
+    rank = jnp.argsort(jnp.argsort(-jax.lax.stop_gradient(per_sample)))
+    return jnp.clip(k - rank.astype(per_sample.dtype), 0.0, 1.0) / k
+
+
+def mean_or_inf(values, valid=None, share: float = 1.0):
+    """The mean over the runs (the `valid` ones: roads on the last axis), or inf.
+
+    For samples x roads with `share` < 1: the mean of the worst `share` of the
+    samples' means over their roads (`worst_share_weights`)."""
     if valid is None:
         valid = jnp.ones(values.shape[-1:], bool)
     valid = jnp.broadcast_to(valid, values.shape)
     # A run that failed (diverged, left the current range) makes the whole parameter
     # set unacceptable: the mean is inf, never a finite number that hides it.
     finite = jnp.all(jnp.isfinite(values) | ~valid)
+    if values.ndim == 2 and share < 1:
+        per_sample = jnp.sum(jnp.where(valid, values, 0.0), axis=1) / jnp.sum(
+            valid, axis=1
+        ).astype(values.dtype)
+        safe = jnp.where(jnp.isfinite(per_sample), per_sample, 0.0)
+        value = jnp.sum(worst_share_weights(safe, share) * safe)
+        return jnp.where(finite, value, jnp.inf)
     total = jnp.sum(jnp.where(valid, values, 0.0))
     return jnp.where(finite, total / jnp.sum(valid).astype(values.dtype), jnp.inf)
 
@@ -85,7 +112,7 @@ def losses(u, pair, samples, batch, setup: Setup):
     values = _over_runs(
         lambda s, road: _one_run(u, s, controller, road, setup), system, samples, roads
     )
-    return values, mean_or_inf(values, valid)
+    return values, mean_or_inf(values, valid, setup.worst_share)
 
 
 @eqx.filter_jit
@@ -102,7 +129,7 @@ def population_losses(us, pair, samples, batch, setup: Setup):
             samples,
             roads,
         )
-        return mean_or_inf(values, valid)
+        return mean_or_inf(values, valid, setup.worst_share)
 
     return jax.vmap(one)(us)
 
@@ -127,10 +154,28 @@ def loss_and_grad(u, pair, samples, batch, setup: Setup):
     ok = jnp.isfinite(values) & jnp.broadcast_to(valid, values.shape)
     for g in grads:
         ok = ok & jnp.all(jnp.isfinite(g), axis=tuple(range(values.ndim, g.ndim)))
+    value = mean_or_inf(values, valid, setup.worst_share)
+    if values.ndim == 2 and setup.worst_share < 1:
+        # Each sample's gradient is the mean over its own successful roads; the
+        # samples are then weighted as the value weighs them (ranked by their mean
+        # over the successful roads, a sample with a failed road counted worst).
+        count = jnp.maximum(jnp.sum(ok, axis=1), 1).astype(values.dtype)
+        per_sample = jnp.sum(jnp.where(ok, values, 0.0), axis=1) / count
+        failed = jnp.any(~ok & jnp.broadcast_to(valid, values.shape), axis=1)
+        ranked = jnp.where(failed, jnp.inf, per_sample)
+        weight = worst_share_weights(ranked, setup.worst_share) / count
+
+        def weighted(g):
+            mask = ok.reshape(ok.shape + (1,) * (g.ndim - ok.ndim))
+            # g: (samples, roads, *parameter shape)
+            w = weight.reshape(weight.shape + (1,) * (g.ndim - 2))
+            return jnp.sum(w * jnp.sum(jnp.where(mask, g, 0.0), axis=1), axis=0)
+
+        return value, tuple(weighted(g) for g in grads), values
     count = jnp.maximum(jnp.sum(ok), 1).astype(values.dtype)
 
     def masked_mean(g):
         mask = ok.reshape(ok.shape + (1,) * (g.ndim - ok.ndim))
         return jnp.sum(jnp.where(mask, g, 0.0), axis=tuple(range(ok.ndim))) / count
 
-    return mean_or_inf(values, valid), tuple(masked_mean(g) for g in grads), values
+    return value, tuple(masked_mean(g) for g in grads), values

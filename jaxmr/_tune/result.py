@@ -17,10 +17,11 @@ class TuneResult:
       is not kept).
     - `values`: the tuned parameters, in the order `parameters` returns them.
     - `loss`: the best training loss of the hard law (mean objective over the
-      training roads, and over the damper samples when given).
+      training roads, and over the damper samples when given: the worst
+      `worst_share` of them).
     - `initial_loss`: the hard law's training loss at the start.
     - `held_out_loss`: the returned pair's mean objective on the `validation` roads
-      (`None` when none were given).
+      (over the samples as `loss` is; `None` when no roads were given).
     - `history`: the best loss after each iteration (a step of `tune`, a generation
       of `cma_es`, a candidate of `random_search`).
     - `simulations`: road simulations spent (a gradient evaluation of a batch of $B$

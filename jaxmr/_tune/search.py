@@ -45,6 +45,7 @@ def random_search(
     bounds: Sequence[tuple[float, float]] | None = None,
     validation=None,
     samples: AbstractSystem | None = None,
+    worst_share: float = 1.0,
     key: jax.Array | None = None,
     dt: float = 1e-3,
     substeps: int = 4,
@@ -59,9 +60,9 @@ def random_search(
     (clipped to `bounds` when given), or within ± `spread` of it with
     `log_space=False`; `population` of them are simulated together under `vmap`.
 
-    **Arguments:** as `tune`, plus `simulations` (the budget: give `tune`'s
-    `TuneResult.simulations` for an equal-budget comparison), `spread`, `population`,
-    `key`.
+    **Arguments:** as `tune` (`worst_share` included), plus `simulations` (the
+    budget: give `tune`'s `TuneResult.simulations` for an equal-budget comparison),
+    `spread`, `population`, `key`.
     """
     who = "random_search"
     as_space(log_space, bounds, who)  # checks the bounds
@@ -81,6 +82,7 @@ def random_search(
         dt,
         substeps,
         delay,
+        worst_share,
     )
     trials = simulations // runs
     flat0, unravel = ravel_pytree(u0)
@@ -156,6 +158,7 @@ def cma_es(
     bounds: Sequence[tuple[float, float]] | None = None,
     validation=None,
     samples: AbstractSystem | None = None,
+    worst_share: float = 1.0,
     key: jax.Array | None = None,
     dt: float = 1e-3,
     substeps: int = 4,
@@ -172,9 +175,10 @@ def cma_es(
     sigmoid variables of `bounds`), started at the given parameters with step size
     `sigma` in those variables (0.5 in log space: a factor 1.6).
 
-    **Arguments:** as `tune`, plus `simulations` (the budget), `sigma`, `population`
-    (default: CMA-ES's own 4 + 3 ln(dimension)), `target` (stop once the best training
-    loss is at or below it: how many simulations a given loss costs), `key`.
+    **Arguments:** as `tune` (`worst_share` included), plus `simulations` (the
+    budget), `sigma`, `population` (default: CMA-ES's own 4 + 3 ln(dimension)),
+    `target` (stop once the best training loss is at or below it: how many
+    simulations a given loss costs), `key`.
 
     Needs the optional dependency `evosax` (`pip install "jaxmr[search]"`).
     """
@@ -200,6 +204,7 @@ def cma_es(
         dt,
         substeps,
         delay,
+        worst_share,
     )
     flat0, unravel = ravel_pytree(u0)
     size = population or 4 + int(3 * np.log(flat0.size))
