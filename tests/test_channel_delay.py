@@ -75,9 +75,9 @@ def test_a_fit_recovers_the_channel_delay():
     assert abs(float(np.asarray(fitted.delay)) / delay - 1) < 1e-6
     assert abs(float(fitted.model.rho) / 5.0 - 1) < 1e-6
     assert result.loss < 1e-20
-    # Without the delay the same model cannot follow the skewed loop.
-    plain = jaxmr.fit(dahl_guess(), runs, progress=False)
-    assert plain.loss > 1e6 * max(result.loss, 1e-30)
+    # The skew matters: the true model read without it misses each run by an NRMSE
+    # of 0.17-0.19.
+    assert min(jaxmr.record_nrmse(TRUTH, runs)) > 0.1
 
 
 @pytest.mark.parametrize("delay", [0.0, INTERVAL, 2.5 * INTERVAL])
