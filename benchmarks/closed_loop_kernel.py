@@ -361,8 +361,8 @@ def closed_loop_speed(duration=8.0, roads=12, repeats=3, specialised=True) -> di
     steps = (DT, SUBSTEPS, DELAY)
     add("jaxmr_forward", _evaluate, car, law, batch, duration, metrics, *steps)
     setup = Setup(True, as_tuple_where(_c_sky), jaxmr.comfort, duration, *steps)
-    roads = road_batch(batch)
-    add("jaxmr_gradient", loss_and_grad, (log_c,), (car, law), None, roads, setup)
+    padded = road_batch(batch)
+    add("jaxmr_gradient", loss_and_grad, (log_c,), (car, law), None, padded, setup)
     kinds = ("kernel", "specialised_kernel") if specialised else ("kernel",)
     for kind in kinds:
         forward, gradient, parameters = _kernels(

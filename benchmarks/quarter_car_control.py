@@ -122,8 +122,9 @@ def laws(car):
 # session 4): with two more features (wheel velocity, damper stroke) the linear law's
 # training loss was 4 % higher; the linear law alone reached 0.767, linear + 16 tanh
 # units 0.766 (8 units: 0.797); annealing from 0.3 or 0.2 did worse than from 0.1.
-# Below T = 0.05 the relaxed loss turns as rough as the hard one (skyhook's gradient
-# jumped to 5e3 at T = 0.04 and Adam lost its way), so the anneal stops there.
+# (Sessions 4-8 regularised the band's closing over T F_y, and below T = 0.05 that
+# loss turned as rough as the hard one; over sqrt(T) F_y, session 9, the anneal was
+# kept as it was.)
 RICH_FEATURES = ("body_velocity", "body_acceleration", "damper_velocity")
 RICH_WIDTH = 16
 TEMPERATURE = (0.1, 0.05)
@@ -136,13 +137,15 @@ SPREAD = 0.25
 # decayed geometrically over the steps.
 WORST_SHARE = 1 / 3
 ROBUST_ROADS, ROBUST_RATE = 4, (0.05, 0.005)
+CONTINUATION_T, CONTINUATION_RATE = (0.02, 0.01), (0.02, 0.002)
 # The constrained law by dual ascent on the Lagrangian of the mean tyre load (session
-# 8): rounds of `tune` on comfort + lambda (tyre / limit - 1) with the multiplier
-# raised by RHO x the training roads' violation after each round. A round's law counts
-# as feasible when its training tyre load is at most MARGIN x the limit: the held-out
-# roads' tyre load ran 2.6 % above the training roads' in a probe, so 3 % is kept
-# aside for them.
-LAGRANGE_START, RHO, ROUNDS, MARGIN = 0.3, 3.0, 4, 0.97
+# 8): rounds of `tune` on comfort + lambda (tyre / target - 1) with the multiplier
+# raised by RHO x the training roads' excess over the target after each round. A
+# round's law counts as feasible when its training tyre load is at most MARGIN x the
+# limit: the held-out roads' tyre load ran 2.6 % above the training roads' in a probe,
+# so 3 % is kept aside for them; the rounds aim a point lower (TARGET), as they end
+# within about 1 % of where they aim.
+LAGRANGE_START, RHO, ROUNDS, MARGIN, TARGET = 0.3, 3.0, 4, 0.97, 0.96
 
 
 def weights(p):
@@ -319,18 +322,16 @@ def main():
     start = jaxmr.ForceFeedback.mlp(
         scales, I_MAX, features=RICH_FEATURES, width=RICH_WIDTH, depth=1
     )
-    # `tune` stops on its own when the hard law has not improved for `patience` (its
-    # default, 10) steps: on this landscape its best comes within the first few steps
-    # (session 8: the relaxed gradient's norm then spikes to 1e2-1e3 and the descent
-    # stops finding better hard laws), so the simulations it spends are the ones its
-    # result cost.
+    # The whole annealing schedule is run (`patience` = steps): on the relaxed loss
+    # the descent is steady but the hard law's check can pause for a few steps.
     rich_settings = dict(
         parameters=weights,
         log_space=False,
         temperature=TEMPERATURE,
         steps=args.rich_steps,
         learning_rate=0.03,
-        check_every=2,
+        patience=args.rich_steps,
+        check_every=4,
         validation=held,
         progress=False,
     )
@@ -351,12 +352,13 @@ def main():
         depth=1,
     )
     multiplier, rounds, spent_c = LAGRANGE_START, [], 0
+    target = TARGET * train_limit
     for k in range(1 if args.quick else ROUNDS):
 
         def lagrangian(sol, multiplier=multiplier):
             ratio = jaxmr.rms(sol["tyre_force"]) / car.static_load
             # The comfort scale (0.9 m/s²) makes the multiplier dimensionless.
-            return jaxmr.comfort(sol) + multiplier * 0.9 * (ratio / train_limit - 1.0)
+            return jaxmr.comfort(sol) + multiplier * 0.9 * (ratio / target - 1.0)
 
         result = jaxmr.tune(
             car,
@@ -385,7 +387,8 @@ def main():
         }
         rounds.append((row, law_c))
         print(f"constrained round {k}: {row}", flush=True)
-        multiplier = max(0.0, multiplier + RHO * (row["train_tyre_over_limit"] - 1))
+        over_target = row["train_tyre_over_limit"] * train_limit / target
+        multiplier = max(0.0, multiplier + RHO * (over_target - 1))
     ok_rounds = [r for r in rounds if r[0]["train_tyre_over_limit"] <= MARGIN]
     chosen = min(ok_rounds or rounds, key=lambda r: r[0]["train_comfort"])
     rich_c = chosen[1]
@@ -468,10 +471,13 @@ def main():
     # two continuations with the same settings differ only in their loss: the robust
     # one over every damper sample, weighing the worst third (`worst_share`), the
     # nominal one on the nominal damper again (equal tuning effort). Both are scored
-    # on every sample's held-out roads. Started from zero, the robust tune ended worse
-    # than the nominal law even on its own training objective (session 8: the
-    # gradient's result depends on which early step the hard check catches), which
-    # hides the effect of the loss's aggregate.
+    # on every sample's held-out roads. The continuations run nearly hard
+    # (CONTINUATION_T): the samples' worst-third loss differs between laws by less
+    # than the relaxation's bias at T = 0.05 (session 9: at the stage-1 law and at
+    # gains twice as large, 0.7762 and 0.7765 relaxed, 0.773 and 0.781 hard). From
+    # zero, the robust tune followed that bias to larger gains and ended worse on its
+    # own objective; so did the rich law's (session 9: 84 weights, worst held-out
+    # sample 0.7454 for both).
     systems, factors = damper_samples(car, args.samples, jax.random.key(7))
     train_r = jax.tree.map(lambda x: x[:ROBUST_ROADS], train)
     linear_start = jaxmr.ForceFeedback.linear(
@@ -488,7 +494,8 @@ def main():
     stage_2 = stage_1 | dict(
         steps=args.robust_steps // 2,
         patience=args.robust_steps // 2,
-        learning_rate=ROBUST_RATE[0] / 2.5,
+        temperature=CONTINUATION_T,
+        learning_rate=CONTINUATION_RATE,
     )
     robust = jaxmr.tune(
         car,

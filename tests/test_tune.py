@@ -137,6 +137,48 @@ def test_tuning_gradient_matches_finite_differences():
     assert float(grad[0]) == pytest.approx(float(fd), rel=1e-5)
 
 
+def test_relaxed_inverse_is_smooth_where_the_hard_law_is_jagged():
+    # The training loss of a linear ForceFeedback law along a line of 9 points, 0.005
+    # apart in its gains. The hard law's projection switches where the damper's band
+    # closes (at every reversal), and those switches move with the gains: the hard
+    # loss is jagged at this scale (deviation from its quadratic fit 9.9e-4, four
+    # slope changes). The relaxed inverse spreads the closing over sqrt(T) F_y, wider
+    # than one sample's sweep of the band: smooth at T = 0.05 (8.2e-5, no slope
+    # change: measured). Over T F_y, narrower than that sweep, it was as jagged as the
+    # hard law (3.6e-3, four slope changes), which this test catches.
+    from jaxmr._tune.batch import road_batch
+    from jaxmr._tune.loss import population_losses
+
+    features = ("body_velocity", "body_acceleration", "damper_velocity")
+    law = jaxmr.ForceFeedback.linear((0.1, 1.3, 0.2), 1.0, features=features)
+    setup = _setup(lambda p: [p[1].network.weight], space=False)
+    direction = jnp.array([[0.6, -0.7, 0.4]]) / jnp.linalg.norm(
+        jnp.array([0.6, -0.7, 0.4])
+    )
+    steps = jnp.linspace(-0.02, 0.02, 9)
+    gains = (jnp.array([[0.2, 0.2, 0.05]])[None] + steps[:, None, None] * direction,)
+
+    def line(temperature):
+        pair = (
+            CAR,
+            eqx.tree_at(lambda c: c.temperature, law, jnp.asarray(temperature)),
+        )
+        values = np.asarray(
+            population_losses(gains, pair, None, road_batch(TRAIN), setup)
+        )
+        quadratic = np.polyval(
+            np.polyfit(np.asarray(steps), values, 2), np.asarray(steps)
+        )
+        slope_changes = int(np.sum(np.diff(np.sign(np.diff(values))) != 0))
+        return float(np.max(np.abs(values - quadratic))), slope_changes
+
+    jagged, _ = line(0.0)
+    smooth, slope_changes = line(0.05)
+    assert jagged > 5e-4, jagged  # the premise: the hard loss is jagged here
+    # 3e-4: between the relaxed loss's 8.2e-5 and the jagged losses' 9.9e-4 and more.
+    assert smooth < 3e-4 and slope_changes == 0, (smooth, slope_changes)
+
+
 def test_a_diverged_road_drops_out_of_the_gradient_instead_of_poisoning_it():
     # The second road's heights are NaN: its run is not finite. The loss says so
     # (inf), and the gradient is the first road's alone, finite, not NaN.
