@@ -80,6 +80,46 @@ def test_tune_improves_the_loss_and_keeps_the_best():
     assert result.loss == three.loss
 
 
+def test_patience_counts_the_relaxed_loss_s_progress_too():
+    # From the best gain of a grid (792 N·s/m on these roads, hard a_w 0.6431), the hard
+    # law cannot improve; relaxed at T = 0.5 the loss falls towards lower gains (its
+    # grid optimum is at the grid's edge, 500 N·s/m). Judged on the hard law alone,
+    # `patience = 3` stops the hard-only run after 3 steps without improvement; the
+    # relaxed run goes on while its relaxed loss falls, to the end of its 8 steps,
+    # and still returns the best hard law: the start (handed in relaxed, returned
+    # hard).
+    gains = np.geomspace(500.0, 5000.0, 21)
+    best = float(gains[np.argmin([mean_comfort(jaxmr.Skyhook(c, 1.0)) for c in gains])])
+    relaxed = jaxmr.Skyhook(best, 1.0, temperature=0.5)
+    # The premise: the relaxed loss is lower at a lower gain.
+    assert mean_comfort(eqx.tree_at(c_sky, (CAR, relaxed), 0.8 * best)[1]) < (
+        mean_comfort(relaxed)
+    )
+    settings = dict(parameters=c_sky, steps=8, patience=3, progress=False)
+    hard = jaxmr.tune(
+        CAR, jaxmr.Skyhook(best, 1.0), TRAIN, T, learning_rate=1.0, **settings
+    )
+    assert hard.reason == "stalled: no improvement in 3 steps", hard.reason
+    assert len(hard.history) == 4 and hard.simulations == 4 * 2
+    soft = jaxmr.tune(
+        CAR,
+        relaxed,
+        TRAIN,
+        T,
+        temperature=0.5,
+        check_every=1,
+        learning_rate=0.1,
+        **settings,
+    )
+    assert soft.reason == "reached steps = 8", soft.reason
+    # No hard check improved on the start after step 0, and the start is returned,
+    # judged and handed back hard although it came in relaxed.
+    assert len(set(soft.history)) == 1, soft.history
+    assert float(soft.values[0]) == pytest.approx(best, rel=1e-12)
+    assert float(soft.controller.temperature) == 0.0
+    assert soft.loss == pytest.approx(mean_comfort(jaxmr.Skyhook(best, 1.0)), rel=1e-10)
+
+
 def test_random_search_spends_the_budget_and_returns_its_best():
     search = jaxmr.random_search(CAR, FAR, TRAIN, T, parameters=c_sky, simulations=6)
     assert search.simulations == 6

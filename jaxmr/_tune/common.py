@@ -7,6 +7,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._control.base import AbstractController
+from .._control.smooth import with_temperature
 from .._distribute import to_host
 from .._systems.base import AbstractSystem
 from .batch import ROADS_EXAMPLE, batch_size, road_batch
@@ -60,7 +61,10 @@ def prepare(
     where = as_tuple_where(parameters)
     space = as_space(log_space, bounds, who)
     setup = Setup(space, where, objective, duration, dt, substeps, delay, share)
-    pair = (system, controller)
+    # Every tuner judges, keeps and returns the hard law (T = 0), whatever temperature
+    # the controller was handed with: a relaxed law is a device for the gradient, not
+    # what runs on the car.
+    pair = (system, with_temperature(controller, 0.0))
     u0 = from_values(initial_values(pair, where, log_space, who), space, who)
     return runs, setup, pair, u0, road_batch(roads)
 
