@@ -474,7 +474,7 @@ def main():
     # on every sample's held-out roads. The continuations run nearly hard
     # (CONTINUATION_T): the samples' worst-third loss differs between laws by less
     # than the relaxation's bias at T = 0.05 (session 9: at the stage-1 law and at
-    # gains twice as large, 0.7762 and 0.7765 relaxed, 0.773 and 0.781 hard). From
+    # gains 1.5-2 times as large, 0.7762 and 0.7765 relaxed, 0.773 and 0.781 hard). From
     # zero, the robust tune followed that bias to larger gains and ended worse on its
     # own objective; so did the rich law's (session 9: 84 weights, worst held-out
     # sample 0.7454 for both).
