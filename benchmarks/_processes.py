@@ -30,7 +30,7 @@ def launch(
 
     # Each worker as users are advised to run (each simulation loop one kernel),
     # with `host_devices` CPU devices.
-    jaxmr.configure_cpu(devices=1)
+    jaxmr.devices.configure_cpu(devices=1)
     env = dict(os.environ)
     env["XLA_FLAGS"] = re.sub(
         r"--xla_force_host_platform_device_count=\d+", "", env.get("XLA_FLAGS", "")

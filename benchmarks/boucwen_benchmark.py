@@ -55,7 +55,7 @@ if __name__ == "__main__":
     # As users are advised to: each simulation loop one XLA kernel (the residual's
     # forward-mode Jacobian ran 5x faster), every core a device; before JAX's backend
     # starts. Not when the tests import this file: theirs has started.
-    jaxmr.configure_cpu()
+    jaxmr.devices.configure_cpu()
 
 import jax  # noqa: E402
 
@@ -143,7 +143,12 @@ def excitation(u, kind: str, substeps: int, periods: int = 1) -> jaxmr.Sampled:
 def from_rest(system, signal, samples: int, substeps: int) -> np.ndarray:
     """The displacement at `samples` samples (750 Hz), from rest, open loop."""
     solution = jaxmr.simulate_system(
-        system, signal, 0.0, samples / FS, dt=1 / FS, substeps=substeps
+        system,
+        signal,
+        0.0,
+        samples / FS,
+        sampling=jaxmr.Sampling(dt=1 / FS),
+        integrator=jaxmr.FixedStep(substeps),
     )
     return np.asarray(solution.outputs["body_position"])
 

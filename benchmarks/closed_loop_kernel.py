@@ -358,7 +358,7 @@ def closed_loop_speed(duration=8.0, roads=12, repeats=3, specialised=True) -> di
         compile_s[name] = runs[name][1]
 
     metrics = (("comfort", jaxmr.comfort),)
-    steps = (DT, SUBSTEPS, DELAY)
+    steps = (jaxmr.Sampling(dt=DT, delay=DELAY), jaxmr.FixedStep(SUBSTEPS))
     add("jaxmr_forward", _evaluate, car, law, batch, duration, metrics, *steps)
     setup = Setup(True, as_tuple_where(_c_sky), jaxmr.comfort, duration, *steps)
     padded = road_batch(batch)
@@ -379,7 +379,9 @@ def closed_loop_speed(duration=8.0, roads=12, repeats=3, specialised=True) -> di
     @jax.jit
     def accelerations(batch, parameters):
         def one(road):
-            jaxmr_run = jaxmr.simulate_system(car, road, law, duration, dt=DT)
+            jaxmr_run = jaxmr.simulate_system(
+                car, road, law, duration, sampling=jaxmr.Sampling(dt=DT)
+            )
             kernel_run = kernel_acceleration(
                 c_sky,
                 road.values,

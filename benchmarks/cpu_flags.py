@@ -1,4 +1,4 @@
-"""`jaxmr.configure_cpu`'s loop setting against XLA's default, same machine, same run.
+"""`jaxmr.devices.configure_cpu`'s loop setting against XLA's default, same machine, same run.
 
     python benchmarks/cpu_flags.py --json benchmarks/results/cpu_flags.json
 
@@ -7,7 +7,7 @@ XLA reads its flags once per process, so each setting runs in its own fresh proc
 
 - `default`: XLA's own threshold (a while loop becomes one kernel when its body
   touches at most 1024 bytes);
-- `configured`: the threshold `jaxmr.configure_cpu` sets (100 kB).
+- `configured`: the threshold `jaxmr.devices.configure_cpu` sets (100 kB).
 
 Each times, compilation and run separately (run: median of 3 after the compiling
 call), the residual and the residual with its forward-mode Jacobian of:
@@ -79,7 +79,7 @@ def utfsm():
         discard=jd.utfsm_first_cycle(experiments),
         smoothing=jd.utfsm_smoothing(experiments),
     )
-    model = jaxmr.MODEL_TEMPLATES["shear_thinning_spencer"](experiments)
+    model = jaxmr.templates.MODEL_TEMPLATES["shear_thinning_spencer"](experiments)
     free, static = eqx.partition(model, free_filter(model))
     return _pair(
         lambda: residuals_jit(free, static, data),
@@ -129,7 +129,7 @@ def worker(setting: str, out: Path) -> None:
     import jaxmr
 
     if setting == "configured":
-        jaxmr.configure_cpu(devices=1)
+        jaxmr.devices.configure_cpu(devices=1)
     import jax
 
     jax.config.update("jax_enable_x64", True)

@@ -43,7 +43,7 @@ import jaxmr
 
 # As `jaxmr fit` does: every CPU core an XLA device (up to 8), so that a fit splits its
 # lanes over them, and each simulation loop one kernel. Flags of your own are kept.
-jaxmr.configure_cpu()
+jaxmr.devices.configure_cpu()
 
 import jax  # noqa: E402
 
@@ -99,7 +99,7 @@ def _timed(function, repeats=3):
 
 
 def layouts(experiments, discard, smoothing):
-    model = jaxmr.MODEL_TEMPLATES["shear_thinning_spencer"](experiments)
+    model = jaxmr.templates.MODEL_TEMPLATES["shear_thinning_spencer"](experiments)
     free, static = eqx.partition(model, free_filter(model))
     out = {"num_parameters": int(sum(np.size(x) for x in jax.tree.leaves(free)))}
     for name, lanes in (("packed", None), ("padded", len(experiments))):
@@ -123,7 +123,7 @@ def layouts(experiments, discard, smoothing):
 
 def joint_fit(experiments, discard, smoothing, published):
     start = time.perf_counter()
-    model = jaxmr.MODEL_TEMPLATES["shear_thinning_spencer"](experiments)
+    model = jaxmr.templates.MODEL_TEMPLATES["shear_thinning_spencer"](experiments)
     result = jaxmr.fit(
         model, experiments, discard=discard, smoothing=smoothing, progress=False
     )
@@ -237,7 +237,9 @@ def main():
     published = jaxmr.record_nrmse(
         jaxmr.utfsm_spencer(), experiments, discard=discard, smoothing=smoothing
     )
-    raw = jaxmr.record_nrmse(jaxmr.utfsm_spencer(), experiments, discard=discard)
+    raw = jaxmr.record_nrmse(
+        jaxmr.utfsm_spencer(), experiments, discard=discard, smoothing=0.0
+    )
     figures = {
         "devices": len(jax.devices()),
         "load_average_at_start": os.getloadavg(),

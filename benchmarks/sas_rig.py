@@ -46,10 +46,10 @@ import numpy as np  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import jaxmr  # noqa: E402
+from jaxmr._closed_loop import free_decay  # noqa: E402
 from jaxmr._systems.sas_rig import (  # noqa: E402
     SASRig,
     decay_settling_time,
-    free_decay,
     sas_rig,
 )
 

@@ -11,16 +11,19 @@ them from this file's syntax tree.
 
 import ast
 import importlib
+import warnings
 from typing import TYPE_CHECKING
 
-__version__ = "0.1.0"
+from ._version import __version__ as __version__
 
 if TYPE_CHECKING:
     from ._analysis import energy_per_cycle as energy_per_cycle
     from ._channel import ChannelDelay as ChannelDelay
     from ._closed_loop import (
+        Sampling as Sampling,
         SystemSolution as SystemSolution,
         dissipated_work as dissipated_work,
+        free_decay as free_decay,
         simulate_system as simulate_system,
     )
     from ._control import (
@@ -47,7 +50,6 @@ if TYPE_CHECKING:
         solve_riccati as solve_riccati,
         with_temperature as with_temperature,
     )
-    from ._cpu import configure_cpu as configure_cpu
     from ._current_dynamics import (
         AbstractCurrentDynamics as AbstractCurrentDynamics,
         FirstOrderLag as FirstOrderLag,
@@ -61,7 +63,6 @@ if TYPE_CHECKING:
         TableLaw as TableLaw,
     )
     from ._damper import Damper as Damper
-    from ._distribute import gather as gather
     from ._hysteresis import (
         AbstractHysteresis as AbstractHysteresis,
         Bingham as Bingham,
@@ -74,29 +75,29 @@ if TYPE_CHECKING:
         Spencer as Spencer,
     )
     from ._identify import (
-        MODEL_TEMPLATES as MODEL_TEMPLATES,
-        DataScales as DataScales,
         Design as Design,
         FastLevenbergMarquardt as FastLevenbergMarquardt,
+        FitEnded as FitEnded,
         FitResult as FitResult,
+        FitStarted as FitStarted,
         ModelScore as ModelScore,
+        PredictionBand as PredictionBand,
+        ProgressPrinter as ProgressPrinter,
         Selection as Selection,
         StepPolicy as StepPolicy,
+        StopReason as StopReason,
         SystemRecord as SystemRecord,
         compare_models as compare_models,
-        data_scales as data_scales,
         design_experiments as design_experiments,
         fit as fit,
         fit_each as fit_each,
         fit_system as fit_system,
-        holdout_split as holdout_split,
-        moving_average as moving_average,
-        nrmse as nrmse,
         planned_test as planned_test,
         predict as predict,
         predict_all as predict_all,
+        prediction_band as prediction_band,
+        prediction_band_from_covariance as prediction_band_from_covariance,
         record_nrmse as record_nrmse,
-        score_table as score_table,
         select_model as select_model,
         sine_grid as sine_grid,
     )
@@ -107,7 +108,6 @@ if TYPE_CHECKING:
         Stiff as Stiff,
     )
     from ._magnetic import (
-        AISI_12L14_MAJOR_LOOP as AISI_12L14_MAJOR_LOOP,
         BinghamDisc as BinghamDisc,
         HodgdonMaterial as HodgdonMaterial,
         MagneticStage as MagneticStage,
@@ -142,7 +142,6 @@ if TYPE_CHECKING:
     )
     from ._presets import (
         PRESETS as PRESETS,
-        UTFSM_SPENCER_PUBLISHED as UTFSM_SPENCER_PUBLISHED,
         passenger_car_mr_damper as passenger_car_mr_damper,
         review_quarter_car_damper as review_quarter_car_damper,
         sas_brake_bingham as sas_brake_bingham,
@@ -181,13 +180,11 @@ if TYPE_CHECKING:
     from ._simulate import simulate as simulate, sweep as sweep
     from ._solution import RESULTS as RESULTS, Solution as Solution
     from ._systems import (
-        MEASUREMENT_NAMES as MEASUREMENT_NAMES,
         AbstractSystem as AbstractSystem,
         QuarterCar as QuarterCar,
         SASRig as SASRig,
         SingleDegreeOfFreedom as SingleDegreeOfFreedom,
         decay_settling_time as decay_settling_time,
-        free_decay as free_decay,
         inverse_dynamics as inverse_dynamics,
         passenger_car as passenger_car,
         sas_rig as sas_rig,
@@ -208,9 +205,27 @@ if TYPE_CHECKING:
     )
 
 
-# Subpackages with their own vocabulary (files, figures), imported on use as well.
-_SUBPACKAGES = ("data", "plot")
+# Submodules with their own vocabulary (files, figures, model templates, scores,
+# devices, constants), imported on use as well.
+_SUBPACKAGES = ("constants", "data", "devices", "plot", "scores", "templates")
 _exports: dict[str, tuple[str, str]] | None = None
+
+# Names that left the top level in this release (CHANGELOG.md), kept one release as
+# deprecated aliases: name -> the submodule that holds it now.
+_MOVED = {
+    "configure_cpu": "devices",
+    "gather": "devices",
+    "holdout_split": "scores",
+    "moving_average": "scores",
+    "nrmse": "scores",
+    "score_table": "scores",
+    "MODEL_TEMPLATES": "templates",
+    "DataScales": "templates",
+    "data_scales": "templates",
+    "AISI_12L14_MAJOR_LOOP": "constants",
+    "MEASUREMENT_NAMES": "constants",
+    "UTFSM_SPENCER_PUBLISHED": "constants",
+}
 
 
 def _public() -> dict[str, tuple[str, str]]:
@@ -239,10 +254,20 @@ def __getattr__(name: str) -> object:
         return importlib.import_module(f".{name}", __name__)
     if name == "__all__":
         return sorted(_public())
+    if name in _MOVED:
+        # Not stored in this module's globals: every use warns.
+        where = f"{__name__}.{_MOVED[name]}"
+        warnings.warn(
+            f"`{__name__}.{name}` is deprecated and will be removed in the next "
+            f"release: use `{where}.{name}` (import {where}).",
+            DeprecationWarning,
+            stacklevel=2,
+        )
+        return getattr(importlib.import_module(where), name)
     if name not in _public():
         raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    # Every public name at once: `vars(jaxmr)` (the model registry of `load_model`)
-    # then holds them all, as it did when this file imported them eagerly.
+    # Every public name at once: `vars(jaxmr)` then holds them all, as it did when
+    # this file imported them eagerly.
     for public, (module, attribute) in _public().items():
         globals()[public] = getattr(
             importlib.import_module(module, __name__), attribute

@@ -3,6 +3,7 @@
 import jax.numpy as jnp
 
 from ._custom_types import ArrayLike, Float
+from ._metrics import dissipated_energy
 from ._solution import Solution
 
 
@@ -28,11 +29,10 @@ def energy_per_cycle(
             "energy_per_cycle needs the solution's ts, force and velocity: pass them "
             "in `sweep(..., keep=)`."
         )
-    power = force * velocity
     t_end = ts[..., -1:]
     period = jnp.asarray(period)[..., None]
     inside = ts >= t_end - period - 1e-9 * period
-    dt = jnp.diff(ts, axis=-1)
-    both = inside[..., 1:] & inside[..., :-1]
-    segment = 0.5 * (power[..., 1:] + power[..., :-1]) * dt
-    return jnp.sum(jnp.where(both, segment, 0.0), axis=-1)
+    # `dissipated_energy` over the last period's samples: the clock is held at the
+    # first of them before it, so the earlier segments span no time and add exactly 0.
+    t_first = jnp.min(jnp.where(inside, ts, jnp.inf), axis=-1, keepdims=True)
+    return dissipated_energy(jnp.maximum(ts, t_first), force, velocity)

@@ -1,10 +1,14 @@
 """The measuring chain: a force channel that lags the motion channels."""
 
+from typing import ClassVar
+
 import equinox as eqx
 import jax.numpy as jnp
 
 from ._current_law import _plain, as_parameter
 from ._custom_types import Array, Float
+from ._damper import Damper
+from ._hysteresis import AbstractHysteresis
 from ._misc import check_concrete
 
 
@@ -33,11 +37,14 @@ class ChannelDelay(eqx.Module):
 
     model: eqx.Module
     delay: Float[Array, ""] | eqx.Module = eqx.field(converter=as_parameter)
+    # What `as_damper` says when handed one (it sits below this module and reads
+    # this rather than importing it).
+    not_a_device: ClassVar[str] = (
+        "a ChannelDelay is the device as its force was measured (the rig's channel "
+        "delay), not a device: simulate its `.model`."
+    )
 
     def __check_init__(self):
-        from ._damper import Damper
-        from ._hysteresis import AbstractHysteresis
-
         if not isinstance(self.model, (AbstractHysteresis, Damper)):
             raise TypeError(
                 "ChannelDelay: `model` must be a jaxmr hysteresis model or Damper, got "

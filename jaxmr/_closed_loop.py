@@ -1,18 +1,116 @@
 """Closed-loop simulation: a system, its damper and a digital controller."""
 
+import math
+import warnings
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 
 from ._control.base import AbstractController, ConstantCurrent, DamperPlant
 from ._custom_types import Array, Float, Scalar
-from ._integrate import rk4_step
+from ._integrate import FixedStep
 from ._metrics import dissipated_energy
-from ._misc import warn_if_float32
+from ._misc import rk4_step, warn_if_float32
 from ._road import RandomRoad
 from ._signal import AbstractSignal, as_signal
 from ._solution import RESULTS
 from ._systems.base import AbstractSystem
+from ._systems.sas_rig import SASRig
+
+_DEGREE = math.pi / 180  # [rad]
+
+
+class Sampling(eqx.Module):
+    """The timing of a digital controller: how often it samples and how late its
+    command acts. Taken by `simulate_system`, `free_decay` and the tuners (`tune`,
+    `random_search`, `cma_es`, `evaluate`); how the states are integrated between
+    samples is their `integrator` (`FixedStep`).
+
+    **Arguments:**
+
+    - `dt`: the sample time [s], the controller's period; default 1e-3 (1 kHz).
+    - `delay`: whole samples between a measurement and the command it leads to acting
+      on the damper; default 1 (0: at once).
+    """
+
+    dt: float = eqx.field(static=True, default=1e-3)
+    delay: int = eqx.field(static=True, default=1)
+
+    def __check_init__(self):
+        if isinstance(self.dt, bool) or not isinstance(self.dt, (int, float)):
+            raise TypeError(
+                f"Sampling: `dt` must be a number of seconds, got {self.dt!r}."
+            )
+        if not (math.isfinite(self.dt) and self.dt > 0):
+            raise ValueError(
+                f"Sampling: `dt` must be a positive number of seconds, got {self.dt!r}."
+            )
+        if isinstance(self.delay, bool) or not isinstance(self.delay, int):
+            raise TypeError(
+                f"Sampling: `delay` must be a whole number of samples, got "
+                f"{self.delay!r}."
+            )
+        if self.delay < 0:
+            raise ValueError(
+                f"Sampling: `delay` must be a whole number of samples >= 0, got "
+                f"{self.delay!r}."
+            )
+
+
+def loop_settings(
+    who: str, sampling, integrator, deprecated: dict, stacklevel: int = 3
+) -> tuple[Sampling, FixedStep]:
+    """The checked `sampling` and `integrator` of a closed-loop entry point `who`, with
+    the keywords that preceded them (`dt`, `substeps`, `delay`, in `deprecated`)
+    still accepted for one release, with a `DeprecationWarning`."""
+    unknown = sorted(set(deprecated) - {"dt", "substeps", "delay"})
+    if unknown:
+        raise TypeError(f"{who}() got an unexpected keyword argument {unknown[0]!r}")
+    if deprecated:
+        given = [k for k in ("dt", "delay") if k in deprecated]
+        if given and sampling is not None:
+            raise TypeError(
+                f"{who}: give `sampling` alone, not with the deprecated "
+                f"{', '.join(f'`{k}`' for k in given)}."
+            )
+        if "substeps" in deprecated and integrator is not None:
+            raise TypeError(
+                f"{who}: give `integrator` alone, not with the deprecated `substeps`."
+            )
+        replacements = []
+        if given:
+            arguments = ", ".join(f"{k}={deprecated[k]!r}" for k in given)
+            replacements.append(f"sampling=jaxmr.Sampling({arguments})")
+            sampling = Sampling(**{k: deprecated[k] for k in given})
+        if "substeps" in deprecated:
+            substeps = deprecated["substeps"]
+            replacements.append(f"integrator=jaxmr.FixedStep(substeps={substeps!r})")
+            integrator = FixedStep(substeps=substeps)
+        names = ", ".join(
+            f"`{k}`" for k in ("dt", "substeps", "delay") if k in deprecated
+        )
+        warnings.warn(
+            f"{who}: {names} {'is' if len(deprecated) == 1 else 'are'} deprecated and "
+            f"will be removed in the next release; pass {' and '.join(replacements)} "
+            "instead.",
+            DeprecationWarning,
+            stacklevel=stacklevel,
+        )
+    sampling = Sampling() if sampling is None else sampling
+    integrator = FixedStep() if integrator is None else integrator
+    if not isinstance(sampling, Sampling):
+        raise TypeError(
+            f"{who}: `sampling` must be a jaxmr.Sampling(dt, delay), got "
+            f"{type(sampling).__name__}."
+        )
+    if not isinstance(integrator, FixedStep):
+        raise TypeError(
+            f"{who}: `integrator` must be jaxmr.FixedStep(substeps): the closed loop "
+            "takes fixed RK4 steps aligned with the controller's samples (the held "
+            f"command jumps at each), got {type(integrator).__name__}."
+        )
+    return sampling, integrator
 
 
 class SystemSolution(eqx.Module):
@@ -22,11 +120,11 @@ class SystemSolution(eqx.Module):
     **Attributes:**
 
     - `ts`: sample times $t_k = k\\,dt$ [s].
-    - `outputs`: the measurements at each sample (`jaxmr.MEASUREMENT_NAMES` plus the
+    - `outputs`: the measurements at each sample (`jaxmr.constants.MEASUREMENT_NAMES` plus the
       system's own), e.g. `outputs["body_acceleration"]` [m/s²].
     - `command`: the controller's output at each sample [A].
     - `applied`: the command acting on the damper over $[t_k, t_{k+1})$ [A] (the
-      command `delay` samples earlier, held).
+      command `sampling.delay` samples earlier, held).
     - `current`: the effective current the damper's model saw at $t_k$ [A].
     - `states`: system state then damper state at each sample.
     - `final_state`: the state at the end, `duration` [s].
@@ -68,23 +166,17 @@ def _as_controller(controller) -> AbstractController:
     )
 
 
-def _check_arguments(system, excitation, duration, dt, substeps, delay):
+def _check_arguments(system, excitation, duration, sampling: Sampling):
     if not isinstance(system, AbstractSystem):
         raise TypeError(
             "`system` must be a jaxmr system (QuarterCar, SingleDegreeOfFreedom, "
             f"SASRig, ...), got {type(system).__name__}."
         )
-    if not isinstance(dt, (int, float)) or dt <= 0:
-        raise ValueError(f"`dt` must be a positive number of seconds, got {dt!r}.")
+    dt = sampling.dt
     if not isinstance(duration, (int, float)) or duration < dt:
         raise ValueError(
-            f"`duration` must be a number of seconds >= dt = {dt}, got {duration!r}."
-        )
-    if not isinstance(substeps, int) or substeps < 1:
-        raise ValueError(f"`substeps` must be a positive integer, got {substeps!r}.")
-    if not isinstance(delay, int) or delay < 0:
-        raise ValueError(
-            f"`delay` must be a whole number of samples >= 0, got {delay!r}."
+            f"`duration` must be a number of seconds >= the sample time "
+            f"sampling.dt = {dt}, got {duration!r}."
         )
     return as_signal(excitation, "excitation")
 
@@ -114,8 +206,8 @@ def _excitation_checks(excitation, dt, duration):
     if excitation.dt > dt * (1 + 1e-9):
         raise ValueError(
             f"the road is sampled more coarsely (dt = {excitation.dt} s) than the "
-            f"simulation's dt = {dt} s: generate it with `dt` at most the "
-            "simulation's (e.g. iso8608_road(..., dt=...))."
+            f"controller's sample time sampling.dt = {dt} s: generate it with `dt` "
+            "at most that (e.g. iso8608_road(..., dt=...))."
         )
     if excitation.end < duration - 1e-9:
         raise ValueError(
@@ -130,23 +222,24 @@ def simulate_system(
     controller: AbstractController | float,
     duration: float,
     *,
-    dt: float = 1e-3,
-    substeps: int = 4,
-    delay: int = 1,
+    sampling: Sampling | None = None,
+    integrator: FixedStep | None = None,
     initial_state: Float[Array, " states"] | None = None,
     throw: bool = True,
     unroll: int = 1,
+    **deprecated,
 ) -> SystemSolution:
     r"""Simulate a system with its damper under a digital controller.
 
-    Every `dt` the controller reads the measurements and commands a current; the command
-    reaches the damper `delay` samples later and is held until the next one
-    (sample-and-hold). The damper's own current dynamics (`FirstOrderLag` in its
-    `Damper`) then filter it. In between, the system and damper states are integrated
-    together by `substeps` classical RK4 steps: the hold makes the right-hand side
-    discontinuous at every sample, so a fixed step aligned with the samples is both
-    exact in that respect and the fast choice (a `lax.scan`, differentiable in both
-    modes; each sample is rematerialised in reverse mode to keep memory to the states).
+    Every `sampling.dt` the controller reads the measurements and commands a current;
+    the command reaches the damper `sampling.delay` samples later and is held until the
+    next one (sample-and-hold). The damper's own current dynamics (`FirstOrderLag` in
+    its `Damper`) then filter it. In between, the system and damper states are
+    integrated together by `integrator.substeps` classical RK4 steps: the hold makes the
+    right-hand side discontinuous at every sample, so a fixed step aligned with the
+    samples is both exact in that respect and the fast choice (a `lax.scan`,
+    differentiable in both modes; each sample is rematerialised in reverse mode to keep
+    memory to the states).
 
     **Arguments:**
 
@@ -156,9 +249,9 @@ def simulate_system(
       (a jaxmr signal or a constant).
     - `controller`: a jaxmr controller, or a number for a constant current [A].
     - `duration`: simulated time [s] (python float: it sets the number of samples).
-    - `dt`: the controller's sample time [s], default 1 ms (1 kHz).
-    - `substeps`: RK4 steps per sample (default 4: 0.25 ms steps at 1 kHz).
-    - `delay`: samples between measurement and actuation (default 1).
+    - `sampling`: the controller's sample time and delay, a `Sampling` (default
+      `Sampling()`).
+    - `integrator`: the RK4 steps per sample, a `FixedStep` (default `FixedStep()`).
     - `initial_state`: the system's state at $t = 0$ (default: its rest state); the
       damper starts virgin, its current dynamics in steady state at the first command.
     - `throw`: raise on failure (default); `False` returns the code in `result`.
@@ -169,6 +262,10 @@ def simulate_system(
       substeps, a long sampled excitation) ran 10x slower with 8, its forward-mode
       Jacobian 2.6x, and compiling took 3-6x longer.
 
+    The keywords `dt`, `substeps` and `delay` of earlier releases still work, with a
+    `DeprecationWarning`: they are `sampling=Sampling(dt, delay)` and
+    `integrator=FixedStep(substeps)`.
+
     **Returns:** a `SystemSolution`.
     """
     warn_if_float32(
@@ -178,9 +275,12 @@ def simulate_system(
     )
     # Numbers become arrays before the jit boundary: a Python float current or
     # excitation would be a static argument there, one compilation per value.
+    sampling, integrator = loop_settings(
+        "simulate_system", sampling, integrator, deprecated
+    )
     controller = _as_controller(controller)
-    excitation = _check_arguments(system, excitation, duration, dt, substeps, delay)
-    _excitation_checks(excitation, dt, duration)
+    excitation = _check_arguments(system, excitation, duration, sampling)
+    _excitation_checks(excitation, sampling.dt, duration)
     if not isinstance(unroll, int) or not 1 <= unroll:
         raise ValueError(f"`unroll` must be a positive integer, got {unroll!r}.")
     return _simulate_system(
@@ -188,12 +288,11 @@ def simulate_system(
         excitation,
         controller,
         duration,
-        dt,
-        substeps,
-        delay,
+        sampling,
+        integrator,
         initial_state,
         throw,
-        min(unroll, substeps),
+        min(unroll, integrator.substeps),
     )
 
 
@@ -203,13 +302,13 @@ def _simulate_system(
     excitation,
     controller,
     duration,
-    dt,
-    substeps,
-    delay,
+    sampling: Sampling,
+    integrator: FixedStep,
     initial_state,
     throw,
     unroll=1,
 ) -> SystemSolution:
+    dt, delay, substeps = sampling.dt, sampling.delay, integrator.substeps
     samples = int(round(duration / dt))
     damper = system.damper
     t0 = jnp.zeros((), dtype=jnp.result_type(float))
@@ -323,4 +422,59 @@ def dissipated_work(solution: SystemSolution) -> Scalar:
     outputs = solution.outputs
     return dissipated_energy(
         solution.ts, outputs["damper_force"], outputs["damper_velocity"]
+    )
+
+
+# -- the SAS study's identification experiment -------------------------------------
+
+
+@eqx.filter_jit
+def _release_state(rig: SASRig, release):
+    rest = rig.equilibrium()
+    return rig.held_state(rest[1] + release), rest
+
+
+def free_decay(
+    rig: SASRig,
+    controller=0.0,
+    *,
+    release_angle_deg: float = 16.0,
+    duration: float = 15.0,
+    sampling: Sampling | None = None,
+    integrator: FixedStep | None = None,
+    **deprecated,
+):
+    r"""The source's identification experiment: the body held `release_angle_deg`
+    above its rest angle, the lower beam resting on the still cam, then released.
+
+    The same as `simulate_system(rig, 0.0, controller, duration,
+    initial_state=rig.held_state(rest + release))` with `rest = rig.equilibrium()[1]`.
+    Give currents as `jnp.asarray(i)` or `ConstantCurrent(jnp.asarray(i), i_max)` to
+    reuse one compilation for several currents (a Python float is a static argument
+    of the jitted `simulate_system`).
+
+    **Arguments:**
+
+    - `rig`: a `SASRig`.
+    - `controller`: a constant current [A] or a jaxmr controller (default 0 A).
+    - `release_angle_deg`: the release angle above rest [°] (default 16, the source's).
+    - `duration`: simulated time [s] (default 15).
+    - `sampling`, `integrator`: as in `simulate_system` (`dt`, `substeps`, `delay`
+      deprecated as there).
+
+    **Returns:** a `SystemSolution`; see `decay_settling_time`.
+    """
+    sampling, integrator = loop_settings("free_decay", sampling, integrator, deprecated)
+    if not isinstance(rig, SASRig):
+        raise TypeError(f"`rig` must be a SASRig, got {type(rig).__name__}.")
+    release = jnp.asarray(release_angle_deg * _DEGREE, dtype=rig.R.dtype)
+    q0, _ = _release_state(rig, release)
+    return simulate_system(
+        rig,
+        0.0,
+        controller,
+        duration,
+        sampling=sampling,
+        integrator=integrator,
+        initial_state=q0,
     )

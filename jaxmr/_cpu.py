@@ -84,7 +84,7 @@ def configure_cpu(devices: int | None = None) -> str:
             else:
                 os.environ["XLA_FLAGS"] = before
             raise RuntimeError(
-                f"jaxmr.configure_cpu: JAX's CPU backend had already started (with "
+                f"jaxmr.devices.configure_cpu: JAX's CPU backend had already started (with "
                 f"{found} device(s)), so XLA_FLAGS came too late; restart the "
                 "interpreter or kernel and call configure_cpu() before any JAX "
                 "computation."

@@ -97,13 +97,10 @@ def as_damper(device) -> Damper:
         return device
     if isinstance(device, AbstractHysteresis):
         return Damper(device)
-    from ._channel import ChannelDelay
-
-    if isinstance(device, ChannelDelay):
-        raise TypeError(
-            "a ChannelDelay is the device as its force was measured (the rig's "
-            "channel delay), not a device: simulate its `.model`."
-        )
+    # A wrapper that is not a device (`ChannelDelay`) says what to simulate instead.
+    hint = getattr(type(device), "not_a_device", None)
+    if isinstance(hint, str):
+        raise TypeError(hint)
     raise TypeError(
         "expected a jaxmr Damper or hysteresis model (e.g. BoucWen(...)), got "
         f"{type(device).__name__}."

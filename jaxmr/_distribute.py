@@ -21,10 +21,12 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 BATCH = "batch"
 
 
-def batch_mesh() -> Mesh | None:
-    """A 1-D mesh (axis `"batch"`) over every device of every process, or None when
-    there is only one device (nothing to spread)."""
-    devices = jax.devices()
+def batch_mesh(local: bool = False) -> Mesh | None:
+    """jaxmr's one device mesh: 1-D (axis `"batch"`) over every device of every
+    process (`local=True`: of this process only, e.g. `fit`'s lanes, which every
+    process scans whole), or None when there is only one device (nothing to
+    spread)."""
+    devices = jax.local_devices() if local else jax.devices()
     if len(devices) == 1:
         return None
     return Mesh(np.array(devices), (BATCH,))

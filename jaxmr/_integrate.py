@@ -25,22 +25,8 @@ import jax.numpy as jnp
 import optimistix as optx
 
 from ._custom_types import Array, Float, Int
-from ._misc import is_concrete
+from ._misc import is_concrete, rk4_step
 from ._solution import RESULTS
-
-
-def rk4_step(vector_field: Callable, t, y, h, args):
-    """One step of the classical fourth-order Runge–Kutta method.
-
-    Written out rather than taken from diffrax (which ships no RK4): diffrax's generic
-    Runge–Kutta step loops over stages with a checkpointed custom-vjp loop that forbids
-    forward-mode autodiff, and its "bounded" alternative triples compile time.
-    """
-    k1 = vector_field(t, y, args)
-    k2 = vector_field(t + h / 2, y + (h / 2) * k1, args)
-    k3 = vector_field(t + h / 2, y + (h / 2) * k2, args)
-    k4 = vector_field(t + h, y + h * k3, args)
-    return y + (h / 6) * (k1 + 2 * k2 + 2 * k3 + k4)
 
 
 class AbstractIntegrator(eqx.Module):
@@ -190,6 +176,10 @@ class FixedStep(AbstractIntegrator):
     while loop and no dense output: as fast as a hand-written kernel, differentiable in
     forward and reverse mode. A step too long for the problem's stiffness makes the state
     non-finite, which comes back as `RESULTS.nonfinite`.
+
+    The one step object every entry point takes under `integrator=`: `k` steps per
+    output interval here, per sample interval of the data in `fit` (as
+    `StepPolicy(substeps=k)`), per controller sample in `simulate_system`.
 
     **Arguments:**
 

@@ -17,16 +17,52 @@ import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
+from . import (
+    _channel,
+    _control,
+    _current_dynamics,
+    _current_law,
+    _damper,
+    _hysteresis,
+    _magnetic,
+    _parameter,
+    _ramp,
+    _road,
+    _signal,
+    _systems,
+)
 from ._misc import default_float
+from ._version import __version__
+
+# The modules whose public classes a file may name: what a model is made of
+# (hysteresis models, current laws and dynamics, constraint wrappers, the damper, the
+# measuring channel, the magnetic stage and brake) and what it is used in (signals,
+# roads, machines, controllers).
+_MODULES = (
+    _channel,
+    _control,
+    _current_dynamics,
+    _current_law,
+    _damper,
+    _hysteresis,
+    _magnetic,
+    _parameter,
+    _ramp,
+    _road,
+    _signal,
+    _systems,
+)
 
 
 def _registry() -> dict[str, type]:
-    import jaxmr
-
     return {
         name: obj
-        for name, obj in vars(jaxmr).items()
-        if isinstance(obj, type) and issubclass(obj, eqx.Module)
+        for module in _MODULES
+        for name, obj in vars(module).items()
+        if not name.startswith("_")
+        and isinstance(obj, type)
+        and issubclass(obj, eqx.Module)
+        and obj.__module__.startswith("jaxmr.")
     }
 
 
@@ -139,8 +175,6 @@ def _checked(build, where):
 
 def model_to_dict(model: eqx.Module) -> dict:
     """The JSON-ready description of `model` (type and parameters)."""
-    from . import __version__
-
     return {"jaxmr": __version__, "model": _encode(model)}
 
 

@@ -29,7 +29,7 @@ import jaxmr  # noqa: E402
 # As a user is advised to (and the command line does): each simulation loop compiled
 # as one kernel; one CPU device (the tests that need two start their own processes).
 # Set before JAX's backend starts, and inherited by those processes and the kernels.
-jaxmr.configure_cpu(devices=1)
+jaxmr.devices.configure_cpu(devices=1)
 
 jax.config.update("jax_enable_x64", True)
 jax.config.update("jax_numpy_dtype_promotion", "strict")

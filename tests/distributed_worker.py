@@ -40,7 +40,9 @@ def cases():
     car = jaxmr.passenger_car(jaxmr.passenger_car_mr_damper())
     keys = jax.vmap(jax.random.key)(jnp.arange(3))
     roads = jax.vmap(lambda k: jaxmr.iso8608_road("C", 20.0, 0.3, k))(keys)
-    values = jaxmr.evaluate(car, jaxmr.Skyhook(2000.0, 1.0), roads, 0.3, substeps=1)
+    values = jaxmr.evaluate(
+        car, jaxmr.Skyhook(2000.0, 1.0), roads, 0.3, integrator=jaxmr.FixedStep(1)
+    )
     out["evaluate_comfort"] = np.asarray(values["comfort"])
     return out
 

@@ -115,7 +115,7 @@ def test_true_model_reproduces_the_training_record(window):
     ts, y, excitation, noise = window
     solution = jaxmr.simulate_system(
         hysteretic_benchmark_oscillator(), excitation, 0.0, ts.size / FS,
-        dt=1 / FS, substeps=SUBSTEPS,
+        sampling=jaxmr.Sampling(dt=1 / FS), integrator=jaxmr.FixedStep(SUBSTEPS),
     )  # fmt: skip
     error = np.asarray(solution.outputs["body_position"]) - y
     # Within 15 % of the noise (7.4e-6 m rms; 750 samples estimate an rms to ~3 %).

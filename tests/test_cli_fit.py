@@ -8,6 +8,7 @@ reuses, to keep the file fast.
 
 import contextlib
 import csv
+import dataclasses
 import errno
 import importlib
 import io
@@ -17,15 +18,17 @@ import signal
 import tempfile
 import threading
 from pathlib import Path
-from types import SimpleNamespace
 
+import jax
 import numpy as np
 import pytest
 
 import jaxmr
 import jaxmr.data
-from jaxmr._cli import _FitLog, _outcome, _ranking_table, main
-from jaxmr._identify.templates import MODEL_TEMPLATES
+import jaxmr.scores
+from jaxmr._cli import main
+from jaxmr._cli.fit import _FitLog
+from jaxmr.templates import MODEL_TEMPLATES
 
 CURRENTS = (0.0, 0.5, 1.0)  # A
 AMPLITUDE, FREQUENCY, RATE = 0.01, 1.0, 250.0  # m, Hz, Hz
@@ -152,6 +155,15 @@ def test_fit_writes_model_and_report(fitted, files):
     for name, value in (TRUTH | {".rho": RHO}).items():
         p = parameters[name]
         assert abs(p["value"] - value) < 5 * p["std_error"] + 1e-3 * value, p
+    # The covariance, for the prediction band: its diagonal is the squared errors
+    # (1e-12: the same numbers through JSON's exact float text).
+    covariance = report["covariance"]
+    assert covariance["names"] == [p["name"] for p in report["parameters"]]
+    np.testing.assert_allclose(
+        np.sqrt(np.diag(np.asarray(covariance["matrix"], dtype=float))),
+        [p["std_error"] for p in report["parameters"]],
+        rtol=1e-12,
+    )
 
 
 @pytest.mark.parametrize(
@@ -160,10 +172,12 @@ def test_fit_writes_model_and_report(fitted, files):
 def test_ctrl_c_writes_the_best_model_so_far(
     model, files, fitted, auto, tmp_path, monkeypatch, capsys
 ):
-    """Ctrl-C at the third Levenberg–Marquardt step (raised where the solver steps,
-    as a real SIGINT would be): the command writes the best model so far, says so,
-    and exits 130. The shapes are the fixtures' (the same files and template), so
+    """Ctrl-C (a real SIGINT) during the third Levenberg–Marquardt step: the fit
+    stops after that step, the command writes the best model so far, says so, and
+    exits 130. The shapes are the fixtures' (the same files and template), so
     nothing compiles again."""
+    if threading.current_thread() is not threading.main_thread():
+        pytest.skip("Python handles signals in the main thread only")
     import jaxmr._identify.solver as solver
 
     step, calls = solver._step, []
@@ -171,7 +185,7 @@ def test_ctrl_c_writes_the_best_model_so_far(
     def interrupted(*args):
         calls.append(None)
         if len(calls) == 3:
-            raise KeyboardInterrupt
+            signal.raise_signal(signal.SIGINT)
         return step(*args)
 
     monkeypatch.setattr(solver, "_step", interrupted)
@@ -180,7 +194,8 @@ def test_ctrl_c_writes_the_best_model_so_far(
     assert status == 130 and len(calls) == 3
     assert "interrupted; the best model so far is in" in capsys.readouterr().err
     report = json.loads(out.read_text())["report"]
-    assert report["interrupted"] and "interrupted at step 3" in report["reason"]
+    assert report["interrupted"] and report["stop"] == "interrupted"
+    assert report["num_steps"] == 3 and "interrupted at step 3" in report["reason"]
     # Kept: the best point of two steps, better than the template's start.
     experiments = [jaxmr.data.read_csv(f) for f in files]
     start = MODEL_TEMPLATES["dahl"](experiments)
@@ -196,11 +211,115 @@ def test_predict(fitted, files, tmp_path):
     header = [
         line for line in out.read_text().splitlines() if not line.startswith("#")
     ][0]
-    assert header == "t,x,v,i,F"
+    assert header == "t,x,v,i,F,F_std,F_lower,F_upper"
+    # Still a canonical CSV: `read_csv` reads past the band's columns.
     predicted, measured = jaxmr.data.read_csv(out), jaxmr.data.read_csv(files[1])
     for key in ("t", "x", "v", "current"):
         np.testing.assert_array_equal(getattr(predicted, key), getattr(measured, key))
     assert _nrmse(np.asarray(predicted.force), np.asarray(measured.force)) < 2 * NOISE
+    band = _columns(out)
+    assert np.all(band["F_std"] > 0)
+    assert np.all((band["F_lower"] < band["F"]) & (band["F"] < band["F_upper"]))
+    # A well-determined fit: the band is far narrower than the noise (0.5 % of std F).
+    assert np.max(band["F_upper"] - band["F_lower"]) < NOISE * np.std(band["F"])
+
+
+def _columns(path) -> dict[str, np.ndarray]:
+    """A CSV's columns by name (the band's too)."""
+    with open(path, newline="") as f:
+        rows = list(csv.reader(line for line in f if not line.startswith("#")))
+    return {
+        name: np.array([float(r[k]) for r in rows[1:]])
+        for k, name in enumerate(rows[0])
+    }
+
+
+def test_the_band_is_the_librarys(dahl_fit, files, tmp_path):
+    """`predict` writes `jaxmr.prediction_band`'s numbers for a model saved as
+    `jaxmr fit` saves it (its covariance in the report), at the level asked for; and
+    the library's band is the first-order propagation of the covariance (central
+    differences of `predict_all`) centred on `predict_all`'s force, also for an
+    experiment that has a measured force."""
+    from jaxmr._cli.fit import _fit_report
+
+    experiments = [jaxmr.data.read_csv(f) for f in files]
+    params = tmp_path / "p.json"
+    report = _fit_report("dahl", files, experiments, dahl_fit, 1.0, None, [])
+    jaxmr.save_model(dahl_fit.model, params, report=report)
+    out = tmp_path / "pred.csv"
+    status, _ = _run(["predict", params, files[2], "--out", out, "--band-level", "0.9"])
+    assert status == 0
+    (band,) = jaxmr.prediction_band(dahl_fit, experiments[2:], level=0.9)
+    written = _columns(out)
+    # The same computation through a JSON round trip (exact float text): to rounding.
+    for name, column in band.columns().items():
+        np.testing.assert_allclose(
+            written[name.replace("_pred", "")], column, rtol=1e-9
+        )
+    (predicted,) = jaxmr.predict_all(dahl_fit.model, experiments[2:])
+    np.testing.assert_allclose(band.force, predicted, rtol=1e-12)
+    # z for 90 %: 1.6449.
+    np.testing.assert_allclose(band.upper - band.force, 1.6448536 * band.std, rtol=1e-6)
+    # gᵀΣg with g by central differences of relative step 1e-6 (truncation ~1e-12,
+    # rounding ~1e-10 of the force): the std to 1e-5.
+    leaves, treedef = jax.tree.flatten(dahl_fit.model)
+    paths = [
+        jax.tree_util.keystr(p)
+        for p, _ in jax.tree_util.tree_flatten_with_path(dahl_fit.model)[0]
+    ]
+    gradient = []
+    for name, value in zip(dahl_fit.names, dahl_fit.values):
+        k, h = paths.index(name), 1e-6 * abs(value)
+        shifted = []
+        for sign in (1, -1):
+            moved = list(leaves)
+            moved[k] = value + sign * h
+            (f,) = jaxmr.predict_all(
+                jax.tree.unflatten(treedef, moved), experiments[2:]
+            )
+            shifted.append(np.asarray(f))
+        gradient.append((shifted[0] - shifted[1]) / (2 * h))
+    g = np.stack(gradient, axis=1)
+    std = np.sqrt(np.einsum("ki,ij,kj->k", g, dahl_fit.covariance, g))
+    np.testing.assert_allclose(band.std, std, rtol=1e-5)
+
+
+def test_no_band_without_the_fits_covariance(fitted, files, tmp_path):
+    """A parameter file of an older `jaxmr fit` (no covariance): `predict` writes the
+    force without band columns and says why once; `report` draws no band and says
+    why in report.md, where a file with the covariance has both."""
+    import matplotlib.image
+
+    _, params, _ = fitted
+    data = json.loads(params.read_text())
+    del data["report"]["covariance"]
+    old = tmp_path / "old.json"
+    old.write_text(json.dumps(data))
+    out = tmp_path / "pred.csv"
+    status, stdout = _run(["predict", old, files[0], "--out", out])
+    assert status == 0
+    assert list(_columns(out)) == ["t", "x", "v", "i", "F"]
+    assert stdout.count("no prediction band") == 1
+    assert "holds no covariance of the fitted parameters" in stdout
+    images = []
+    for name, source in (("old", old), ("new", params)):
+        status, _ = _run(["report", source, files[0], "--out", tmp_path / name])
+        assert status == 0
+        markdown = (tmp_path / name / "report.md").read_text()
+        with open(tmp_path / name / "report.csv", newline="") as f:
+            (row,) = list(csv.DictReader(f))
+        if name == "old":
+            assert "No prediction band: it holds no covariance" in markdown
+            assert row["band_halfwidth_N"] == ""
+        else:
+            assert "95% prediction band" in markdown and "band ± [N]" in markdown
+            # Well determined (see `test_predict`): far narrower than the error.
+            width = float(row["band_halfwidth_N"])
+            assert 0 < width < 0.5 * float(row["rmse_N"])
+            assert "the parameters are well determined for these inputs" in markdown
+        images.append(matplotlib.image.imread(tmp_path / name / f"{files[0].stem}.png"))
+    # The band drawn (its legend entry at least: it is thinner than a pixel here).
+    assert images[0].shape == images[1].shape and np.any(images[0] != images[1])
 
 
 def test_predict_rotary_without_force(tmp_path):
@@ -560,89 +679,103 @@ def test_ctrl_c_while_the_fit_computes_its_report(
 # What `jaxmr fit` prints, and what its report records
 
 
-_STALLED = (
-    "stalled: no relative improvement above 0.0001 in 8 steps or 3 accepted steps "
-    "(the noise floor)"
-)
-
-
-def _result(reason, converged, unidentified=()):
-    return SimpleNamespace(
-        reason=reason,
-        converged=converged,
-        interrupted=False,
-        unidentified=unidentified,
+@pytest.fixture(scope="module")
+def dahl_fit():
+    """A real `FitResult` of the files' data (2 steps: its words are what is tested)."""
+    rng = np.random.default_rng(0)
+    experiments = [_experiment(c, rng) for c in CURRENTS]
+    model = MODEL_TEMPLATES["dahl"](experiments)
+    return jaxmr.fit(
+        model, experiments, max_steps=2, progress=False, statistics_refinement=1
     )
 
 
-def test_outcome_words_follow_converged():
+def _as(result, stop, unidentified=(), steps=25):
+    return dataclasses.replace(
+        result, stop=stop, unidentified=unidentified, num_steps=steps
+    )
+
+
+def test_outcome_words_follow_converged(dahl_fit):
     """A fit that stopped on stalled progress at the noise floor has converged (its
-    report says `"converged": true`): the printed outcome says so, not "stalled"."""
-    assert _outcome(_result(_STALLED, True)) == (
-        "converged: no relative improvement above 0.0001 in 8 steps or 3 accepted "
-        "steps (the noise floor)"
+    report says `"converged": true`): the words say so, not "stalled"; the summary,
+    the ranking and the report all use `FitResult.outcome`."""
+    stop = jaxmr.StopReason
+    stalled = _as(dahl_fit, stop.STALLED)
+    assert stalled.converged and stalled.outcome == (
+        "converged: no relative improvement left (the noise floor)"
     )
     lm = "converged (Levenberg–Marquardt's tolerance met)"
-    assert _outcome(_result(lm, True)) == lm
-    assert _outcome(_result(_STALLED, False, ("a",))) == (
+    assert _as(dahl_fit, stop.TOLERANCE).outcome == lm
+    unidentified = _as(dahl_fit, stop.STALLED, ("a",))
+    assert not unidentified.converged
+    assert unidentified.outcome == (
         "not converged: 1 parameter combination(s) not identified"
     )
-    assert _outcome(_result("reached max_steps = 25", False)) == (
-        "not converged: reached max_steps = 25"
-    )
-    # The candidates as `compare_models` ranks them (the attributes the table reads).
+    budget = _as(dahl_fit, stop.MAX_STEPS)
+    assert budget.outcome == "not converged: reached max_steps = 25"
+    stopped = _as(dahl_fit, stop.INTERRUPTED, steps=3)
+    assert stopped.outcome.startswith("interrupted at step 3")
+    for result in (stalled, unidentified, budget, stopped):
+        assert result.outcome.startswith("converged") == result.converged
+        assert str(result).startswith(f"fit: {result.outcome} after ")
+    # The candidates as `compare_models` ranks them.
+    nan = np.full(1, np.nan)
     scores = [
-        SimpleNamespace(
-            name="dahl",
-            result=_result(_STALLED, True),
-            num_parameters=5,
-            median_train_nrmse=0.0055,
-            median_test_nrmse=0.0055,
-            error=None,
-            stage="full",
+        jaxmr.ModelScore(
+            "dahl",
+            stalled,
+            ("b",),
+            np.array([0.05]),
+            np.array([0.0055]),
+            6.5,
+            3,
+            screening_time=2.5,
+            full_time=4.0,
         ),
-        SimpleNamespace(
-            name="bingham",
-            result=_result("reached max_steps = 25", False),
-            num_parameters=4,
-            median_train_nrmse=0.47,
-            median_test_nrmse=0.49,
-            error=None,
+        jaxmr.ModelScore(
+            "bingham",
+            budget,
+            ("b",),
+            np.array([0.3]),
+            np.array([0.49]),
+            1.0,
+            4,
             stage="screened",
         ),
+        jaxmr.ModelScore("broken", None, ("b",), nan, nan, 0.5, 0, error="E: no"),
     ]
-    table = _ranking_table(scores, {("dahl", "screening"): 2.5, ("dahl", "full"): 4.0})
-    dahl, bingham = table.splitlines()[1:]
+    assert scores[0].outcome == "converged"
+    assert scores[1].outcome == budget.outcome + " (screening only)"
+    table = jaxmr.scores.score_table(scores)
+    dahl, bingham, broken = table.splitlines()[1:]
     assert dahl.split()[3:5] == ["2.5", "4.0"] and dahl.endswith("converged")
     assert "stalled" not in table
     assert bingham.endswith("not converged: reached max_steps = 25 (screening only)")
     assert bingham.split()[3:5] == ["-", "-"]  # no time recorded: none made up
+    assert broken.endswith("failed: E: no")
 
 
-def test_fit_log_prints_each_fits_own_time(capsys):
-    """`compare_models` gives a finalist's screening and full fit as one time ("in
-    all"): the command prints and records each fit's own."""
-    ticks = iter([0.0, 1.0, 12.0, 13.0, 19.0, 20.0, 24.0])
-    log = _FitLog(single=False, terminal=True, clock=lambda: next(ticks))
+def test_fit_log_prints_the_librarys_lines(capsys):
+    """`select_model`'s lines (its `log`), indented, and the step lines labelled with
+    the fit under way (its `callback`)."""
+    log = _FitLog(single=False, terminal=False)
+    log.event(jaxmr.FitStarted("dahl", "screening", 2))
     log.line("dahl: screened fit on 2 experiment(s)...")
-    log.line("dahl: 11.0 s, 18 steps, 5 parameters; median NRMSE train 0.0055")
-    log.line("dahl: full fit on 2 experiment(s), from its screening fit...")
-    log.line("dahl: 17.0 s in all, 3 steps; median NRMSE train 0.0055")
-    log.line("selected dahl; refitting on all 3 experiment(s)...")
-    log.close()
-    assert log.times == {
-        ("dahl", "screening"): 11.0,
-        ("dahl", "full"): 6.0,
-        ("dahl", "refit"): 4.0,
-    }
-    printed = capsys.readouterr().out
-    assert "  dahl: 11.0 s, 18 steps" in printed
-    assert "  dahl: 6.0 s, 3 steps; median" in printed and "in all" not in printed
+    log.step(10, 0.5)
+    log.event(jaxmr.FitStarted("dahl", "refit", 3))
+    log.step(20, 0.25)
+    printed = capsys.readouterr().out.splitlines()
+    assert printed == [
+        "  dahl: screened fit on 2 experiment(s)...",
+        "    dahl (screening) step   10: loss 0.5",
+        "    dahl (refit) step   20: loss 0.25",
+    ]
 
 
 def test_fit_log_prints_steps_when_not_on_a_terminal(capsys):
     to_file = _FitLog(single=False, terminal=False)
-    to_file.label = "dahl (screening)"
+    to_file.step.label = "dahl (screening)"
     for step in range(1, 25):
         to_file.step(step, 0.5)
     printed = capsys.readouterr().out.splitlines()
@@ -653,6 +786,21 @@ def test_fit_log_prints_steps_when_not_on_a_terminal(capsys):
     on_terminal = _FitLog(single=False, terminal=True)  # `auto`: its candidates' lines
     on_terminal.step(10, 0.5)
     assert capsys.readouterr().out == ""
+
+
+def test_auto_is_never_worse_than_its_template_fitted_alone(auto, fitted):
+    """`auto` keeps the lower loss of its refit and of its template's own fit, which
+    is what `fit --model dahl` runs: never a higher loss than that."""
+    auto_report = json.loads(auto[1].read_text())["report"]
+    plain = json.loads(fitted[1].read_text())["report"]
+    assert auto_report["template"] == "dahl"
+    assert auto_report["loss"] <= plain["loss"]
+    selection = auto_report["selection"]
+    assert selection["kept"] in ("refit", "template")
+    assert selection["refit_time_s"] > 0 and selection["template_time_s"] > 0
+    # One verdict: the summary line, the report and the ranking's words agree.
+    assert auto_report["outcome"].startswith("converged") == auto_report["converged"]
+    assert f"fit: {auto_report['outcome']} after " in auto[2]
 
 
 def test_auto_prints_and_records_each_candidates_stages(auto):

@@ -172,7 +172,7 @@ def test_state_space_matches_the_car():
 
 
 def measurement(**values):
-    m = {name: 0.0 for name in jaxmr.MEASUREMENT_NAMES} | values
+    m = {name: 0.0 for name in jaxmr.constants.MEASUREMENT_NAMES} | values
     return {k: jnp.asarray(v, dtype=jnp.float64) for k, v in m.items()}
 
 

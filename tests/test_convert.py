@@ -94,7 +94,8 @@ def test_read_processing_rejects_malformed_values(tmp_path, line, match):
     message = str(info.value)
     assert message.startswith(f"{path}: line 3: ")
     assert f"expected `# {key}: {form}`" in message
-    jd.read_csv(path)  # unaffected
+    with pytest.raises(ValueError, match=match):  # it reads them into the experiment
+        jd.read_csv(path)
 
 
 def test_read_processing_rejects_contradicting_lines(tmp_path):
@@ -268,3 +269,23 @@ def test_convert_rejects_bad_arguments(tmp_path):
     assert not (tmp_path / "out").exists()
     _no_leftovers(tmp_path)
     assert sorted(os.listdir(tmp_path)) == ["file", "ranran_50.csv"]  # nothing new
+
+
+def test_convert_command(tmp_path, capsys):
+    """`jaxmr convert`: the files of `convert_dataset`, said as written; an existing
+    file is refused (exit 1, unchanged) and replaced only with --force, which says so."""
+    from jaxmr._cli import main
+
+    source = shared_data("nees_dyke_mr_damper", "ranran_50.csv")
+    out = tmp_path / "out"
+    assert main(["convert", "nees", source, "--out", out]) == 0
+    path = out / "ranran_50.csv"
+    assert f"wrote {path}\n1 file(s) in {out}" in capsys.readouterr().out
+    path.write_text("old\n")
+    assert main(["convert", "nees", source, "--out", out]) == 1
+    assert "already exist" in capsys.readouterr().err
+    assert path.read_text() == "old\n"
+    assert main(["convert", "nees", source, "--out", out, "--force"]) == 0
+    assert f"wrote {path} (replaced the existing file)" in capsys.readouterr().out
+    assert len(jd.read_csv(path)) == len(jd.load_nees(source, trim=True))
+    _no_leftovers(out)

@@ -1,4 +1,4 @@
-"""`jaxmr.configure_cpu`: the XLA flags it sets take effect, a user's own are kept, and
+"""`jaxmr.devices.configure_cpu`: the XLA flags it sets take effect, a user's own are kept, and
 a call that comes after JAX's backend started says so."""
 
 import os
@@ -37,7 +37,7 @@ def _run(code: str, xla_flags: str | None) -> str:
 def test_devices_are_made_and_a_users_own_count_is_kept():
     code = """
         import jaxmr, jax
-        flags = jaxmr.configure_cpu(devices=2)
+        flags = jaxmr.devices.configure_cpu(devices=2)
         print(len(jax.devices()), flags)
         """
     count, flags = _run(code, None).split(" ", 1)
@@ -53,7 +53,7 @@ def test_a_call_after_the_backend_started_raises_and_leaves_no_flags():
         import os, jax, jax.numpy as jnp, jaxmr
         jnp.zeros(1).block_until_ready()  # the backend starts with one device
         try:
-            jaxmr.configure_cpu(devices=2)
+            jaxmr.devices.configure_cpu(devices=2)
         except RuntimeError as e:
             print("too late" in str(e), os.environ.get("XLA_FLAGS"))
         """
@@ -62,7 +62,7 @@ def test_a_call_after_the_backend_started_raises_and_leaves_no_flags():
 
 def test_bad_device_count():
     with pytest.raises(ValueError, match="positive integer"):
-        jaxmr.configure_cpu(devices=0)
+        jaxmr.devices.configure_cpu(devices=0)
 
 
 def test_a_fit_jacobian_loop_is_one_kernel():

@@ -195,7 +195,7 @@ def _assert_same(a: jd.Experiment, b: jd.Experiment):
         assert (fa is None) == (fb is None), field
         if fa is not None:
             np.testing.assert_array_equal(np.asarray(fa), np.asarray(fb), err_msg=field)
-    for field in ("name", "rotary", "drive", "velocity_source"):
+    for field in ("name", "rotary", "drive", "velocity_source", "smoothing", "discard"):
         assert getattr(a, field) == getattr(b, field), field
 
 
@@ -234,6 +234,37 @@ def test_csv_round_trip(tmp_path, rotary, drive, constant, with_force):
     back = jd.read_csv(path)
     _assert_same(e, back)
     assert back.is_constant_current == constant
+
+
+def test_processing_travels_with_the_experiment(tmp_path):
+    """`smoothing` and `discard` [s] go to a file's comment lines and come back."""
+    t, x, v = _sine(n=300)
+    e = jd.Experiment(
+        t, x, v, 0.5, 300.0 * v, name="processed", smoothing=0.1 / 3, discard=0.25
+    )
+    path = tmp_path / "e.csv"
+    jd.write_csv(e, path)
+    text = path.read_text()
+    assert f"# smoothing: {0.1 / 3!r} s\n# discard: 0.25 s\n" in text
+    back = jd.read_csv(path)
+    _assert_same(e, back)
+    assert (back.smoothing, back.discard) == (0.1 / 3, 0.25)
+    # An explicit argument overrides the experiment's own; 0 (none) writes no line.
+    jd.write_csv(e, path, smoothing=0.0, discard=0.5)
+    assert (jd.read_csv(path).smoothing, jd.read_csv(path).discard) == (0.0, 0.5)
+    plain = jd.Experiment(t, x, v, 0.5, 300.0 * v)
+    jd.write_csv(plain, path)
+    assert "smoothing" not in path.read_text() and "discard" not in path.read_text()
+    assert (jd.read_csv(path).smoothing, jd.read_csv(path).discard) == (0.0, 0.0)
+    # A window keeps the smoothing; its discard still ends where the record's did.
+    later = e.window(float(t[50]), None)
+    assert later.smoothing == e.smoothing
+    np.testing.assert_allclose(later.discard, 0.25 - (t[50] - t[0]), rtol=1e-12)
+    assert e.window(float(t[0]) + 0.28, None).discard == 0.0
+    assert e.window(None, 0.5).discard == 0.25
+    for bad in (-0.1, np.nan, np.inf):
+        with pytest.raises(ValueError, match="`discard` must be a finite number"):
+            jd.Experiment(t, x, v, 0.5, discard=bad)
 
 
 def test_csv_without_velocity_computes_it(tmp_path):

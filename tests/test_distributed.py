@@ -28,7 +28,7 @@ def test_two_processes_equal_one(tmp_path):
     port = str(_free_port())
     env = dict(os.environ, PYTHONPATH=str(HERE.parent))
     # Each process sees one CPU device (as one process per GPU would): the session's
-    # flags (conftest: jaxmr.configure_cpu) set no device count.
+    # flags (conftest: jaxmr.devices.configure_cpu) set no device count.
     workers = [
         subprocess.Popen(
             [
@@ -64,7 +64,7 @@ def test_a_fit_splits_its_lanes_over_devices_with_one_device_s_results(tmp_path)
     # side on them. Same program per lane, so the same numbers exactly.
     out = tmp_path / "lanes.npz"
     env = dict(os.environ, PYTHONPATH=str(HERE.parent))
-    # The session's flags (conftest: jaxmr.configure_cpu) and 2 CPU devices.
+    # The session's flags (conftest: jaxmr.devices.configure_cpu) and 2 CPU devices.
     env["XLA_FLAGS"] = (
         env.get("XLA_FLAGS", "") + " --xla_force_host_platform_device_count=2"
     )

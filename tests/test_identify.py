@@ -247,7 +247,7 @@ def test_fit_each_with_two_host_devices_keeps_to_one():
     )
     root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
     env = dict(os.environ)
-    # The session's flags (conftest: jaxmr.configure_cpu) and 2 CPU devices.
+    # The session's flags (conftest: jaxmr.devices.configure_cpu) and 2 CPU devices.
     env["XLA_FLAGS"] = (
         env.get("XLA_FLAGS", "") + " --xla_force_host_platform_device_count=2"
     )

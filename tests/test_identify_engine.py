@@ -1,18 +1,20 @@
 """The identification engine: packed layout, per-experiment steps, starts, compilation
 reuse and the honest report (issue 9)."""
 
+import threading
 from types import SimpleNamespace
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
+import optimistix as optx
 import pytest
 
 import jaxmr
 from jaxmr._identify.data import StepPolicy, pack
 from jaxmr._identify.residual import residuals_jit
-from jaxmr._identify.solver import spread_starts
+from jaxmr._identify.solver import iterate, spread_starts
 from jaxmr._parameter import free_filter
 
 from .helpers import dahl_guess, dahl_runs
@@ -154,6 +156,7 @@ def test_zero_loss_is_not_convergence_and_bad_data_is_refused():
     model = jaxmr.Dahl(k_x=0.01, k_w=jaxmr.Fixed(3.0), rho=jaxmr.Fixed(5.0))
     result = jaxmr.fit(model, [exact], progress=False)
     assert result.loss == 0.0
+    assert result.stop is jaxmr.StopReason.DEGENERATE
     assert not result.converged and result.reason.startswith("not converged")
     bad = SimpleNamespace(
         **{**vars(run), "force": np.where(run.t > 0.5, np.nan, run.force)}
@@ -197,3 +200,124 @@ def test_poorly_determined_parameters_are_named():
     result = jaxmr.fit(model, [run], progress=False, max_steps=40)
     assert any(".k0" in w for w in result.poorly_determined), result.poorly_determined
     assert "poorly determined" in str(result)
+
+
+# ---------------------------------------------------------------------------------------
+# Why a fit stops: each `StopReason` where it names, and the caller's stop flag
+
+# The fit's own Jacobian for the statistics (one compilation less) and no printing.
+_QUICK = dict(progress=False, statistics_refinement=1)
+
+
+class _FailingSolver(jaxmr.FastLevenbergMarquardt):
+    """Reports a failed solve (as for a non-finite step) after every step."""
+
+    def terminate(self, fn, y, args, options, state, tags):
+        return state.terminate, optx.RESULTS.nonfinite
+
+
+def test_each_stop_reason_where_it_names():
+    runs = dahl_runs((5.0,), (3.0,))
+    Stop = jaxmr.StopReason
+    # The budget: one step, before LM's test (never on the first step) or a stall.
+    budget = jaxmr.fit(dahl_guess(), runs, max_steps=1, **_QUICK)
+    assert budget.stop is Stop.MAX_STEPS and budget.num_steps == 1
+    assert budget.reason == "reached max_steps = 1" and not budget.converged
+    # A stall: every step must lower the loss by 99 %, which none after the first
+    # does; `patience` 2 then stops it (LM's own test, 1e-8, is far off).
+    stall = jaxmr.fit(dahl_guess(), runs, ftol=0.99, patience=2, **_QUICK)
+    assert stall.stop is Stop.STALLED and stall.converged and stall.num_steps < 10
+    # LM's test, with tolerances of 10 %: met at the first accepted step after the
+    # first (no stall: any improvement counts with ftol 0, and patience is long).
+    loose = jaxmr.FastLevenbergMarquardt(rtol=0.1, atol=0.1)
+    tolerance = jaxmr.fit(
+        dahl_guess(), runs, ftol=0.0, patience=100, solver=loose, **_QUICK
+    )
+    assert tolerance.stop is Stop.TOLERANCE and tolerance.converged
+    assert tolerance.num_steps < 10
+    # A failed solve: the failure is reported, the start's parameters kept.
+    failed = jaxmr.fit(dahl_guess(), runs, solver=_FailingSolver(), **_QUICK)
+    assert failed.stop is Stop.SOLVER_FAILED and failed.num_steps == 1
+    assert not failed.converged and failed.reason.startswith("failed")
+    # The verdict is the enum's and the identification's, nothing else.
+    for result in (budget, stall, tolerance, failed):
+        assert result.converged == (result.stop.converged and not result.unidentified)
+
+
+def _linear(y, static, data, extra):
+    """A residual linear in `y["a"]`, minimum at 3."""
+    return jnp.array([1.0, 2.0]) * (y["a"] - 3.0)
+
+
+def _not_finite(y, static, data, extra):
+    return jnp.array([1.0, 2.0]) * y["a"] * jnp.nan
+
+
+def test_a_loss_never_finite_is_reported_as_such():
+    """Every evaluated point non-finite: `NONFINITE`, with an infinite loss (the
+    solver's initial state used to read as a loss of 0 at the origin)."""
+    ys = {"a": jnp.ones((2,))}
+    args = (_not_finite, None, None, None)
+    solver = jaxmr.FastLevenbergMarquardt()
+    _, outcomes = iterate(solver, ys, args, None, 3, 8, 1e-4, lambda k, loss: None)
+    assert [o.stop for o in outcomes] == [jaxmr.StopReason.NONFINITE] * 2
+    assert all(o.loss == np.inf for o in outcomes)
+
+
+def test_the_stop_flag_stops_between_steps_and_keeps_the_best():
+    runs = dahl_runs((5.0,), (3.0,))
+    stop = threading.Event()
+    losses = []
+
+    def progress(step, loss):  # the caller sets the flag during step 3
+        losses.append(loss)
+        if step == 3:
+            stop.set()
+
+    result = jaxmr.fit(
+        dahl_guess(), runs, progress=progress, stop=stop, statistics_refinement=1
+    )
+    assert result.stop is jaxmr.StopReason.INTERRUPTED and result.interrupted
+    assert result.num_steps == 3 and len(losses) == 3 and not result.converged
+    assert result.reason == (
+        "interrupted at step 3; the best parameters so far are kept"
+    )
+    # The best parameters so far: those of the lowest loss, below the start's.
+    assert result.loss == min(losses) < losses[0]
+    refit = jaxmr.fit(result.constrained, runs, max_steps=1, **_QUICK)
+    # (rtol: the start goes through the column scaling and back.)
+    np.testing.assert_allclose(refit.history[0], result.loss, rtol=1e-12)
+    # A flag set before the fit: it stops after the first step (the starts'
+    # evaluation), for every member of a batch.
+    ys = {"a": jnp.ones((2,))}
+    args = (_linear, None, None, None)
+    solver = jaxmr.FastLevenbergMarquardt()
+    best, outcomes = iterate(
+        solver, ys, args, None, 50, 8, 1e-4, lambda k, loss: None, stop=stop
+    )
+    assert [(o.stop, o.steps) for o in outcomes] == [
+        (jaxmr.StopReason.INTERRUPTED, 1)
+    ] * 2
+    np.testing.assert_array_equal(best["a"], [1.0, 1.0])
+
+
+def test_fit_uses_each_experiments_own_smoothing_and_discard():
+    (run,) = dahl_runs((5.0,), (3.0,))
+    columns = (run.t, run.x, run.v, run.current, run.force)
+    processed = jaxmr.data.Experiment(*columns, smoothing=0.05, discard=0.2)
+    plain = jaxmr.data.Experiment(*columns)
+    options = dict(max_steps=3, **_QUICK)
+    own = jaxmr.fit(dahl_guess(), [processed], **options)
+    given = jaxmr.fit(dahl_guess(), [plain], smoothing=0.05, discard=0.2, **options)
+    # The same computation: the same bits.
+    assert own.loss == given.loss and np.array_equal(own.values, given.values)
+    # An explicit argument overrides the experiment's own.
+    raw = jaxmr.fit(dahl_guess(), [processed], smoothing=0.0, discard=0.0, **options)
+    unprocessed = jaxmr.fit(dahl_guess(), [plain], **options)
+    assert raw.loss == unprocessed.loss != own.loss
+    # So do the scores.
+    model = own.model
+    np.testing.assert_array_equal(
+        jaxmr.record_nrmse(model, [processed]),
+        jaxmr.record_nrmse(model, [plain], smoothing=0.05, discard=0.2),
+    )

@@ -45,8 +45,8 @@ def _simulate(system, excitation, n, initial_state=None):
         excitation,
         0.0,
         n / FS,
-        dt=1 / FS,
-        substeps=SUBSTEPS,
+        sampling=jaxmr.Sampling(dt=1 / FS),
+        integrator=jaxmr.FixedStep(SUBSTEPS),
         initial_state=initial_state,
     )
     return np.asarray(solution.outputs["body_position"])

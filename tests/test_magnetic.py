@@ -55,7 +55,9 @@ def major_loop(material):
 
 
 def test_preset_material_is_derived_from_major_loop(material):
-    derived = jaxmr.HodgdonMaterial.from_major_loop(**jaxmr.AISI_12L14_MAJOR_LOOP)
+    derived = jaxmr.HodgdonMaterial.from_major_loop(
+        **jaxmr.constants.AISI_12L14_MAJOR_LOOP
+    )
     for name in ("A1", "A2", "A3", "A4", "alpha_h", "B_s", "mu_s"):
         # The preset writes out the derivation's float64 result: equal to rounding (the
         # bisection for alpha_h stops at 1e-12 relative width in log alpha_h).
@@ -66,7 +68,7 @@ def test_preset_material_is_derived_from_major_loop(material):
 
 def test_major_loop_closure_remanence_coercivity(material, major_loop):
     first_fall, rise, fall, _ = major_loop
-    data = jaxmr.AISI_12L14_MAJOR_LOOP
+    data = jaxmr.constants.AISI_12L14_MAJOR_LOOP
     # Closure: beyond twice the closure field the branches have merged (they approach
     # each other as exp(-alpha_h (B - B_s)); 1.4e-4 T measured at 6 kA/m).
     for k in range(int(2 * data["H_s"] / DH), K_MAX + 1):
@@ -487,7 +489,7 @@ def test_ramp_signal():
     assert lo == -np.inf and hi == np.inf
 
 
-GOOD = jaxmr.AISI_12L14_MAJOR_LOOP
+GOOD = jaxmr.constants.AISI_12L14_MAJOR_LOOP
 
 
 @pytest.mark.parametrize(

@@ -12,11 +12,10 @@ import numpy as np
 import pytest
 
 import jaxmr
-from jaxmr._closed_loop import dissipated_work
+from jaxmr._closed_loop import dissipated_work, free_decay
 from jaxmr._systems.sas_rig import (
     SASRig,
     decay_settling_time,
-    free_decay,
     inverse_dynamics,
     sas_rig,
 )

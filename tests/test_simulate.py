@@ -206,7 +206,7 @@ def test_sweep_shards_over_several_devices():
         """
     )
     env = dict(os.environ)
-    # The session's flags (conftest: jaxmr.configure_cpu) and 2 CPU devices.
+    # The session's flags (conftest: jaxmr.devices.configure_cpu) and 2 CPU devices.
     env["XLA_FLAGS"] = (
         env.get("XLA_FLAGS", "") + " --xla_force_host_platform_device_count=2"
     )

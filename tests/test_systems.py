@@ -53,7 +53,9 @@ def test_energy_is_conserved_without_damping_or_excitation(system, q0):
 def test_damper_work_equals_the_energy_lost():
     system = car()
     q0 = jnp.array([0.05, 0.0, 0.0, 0.0])
-    sol = jaxmr.simulate_system(system, 0.0, 0.5, 4.0, initial_state=q0, dt=5e-4)
+    sol = jaxmr.simulate_system(
+        system, 0.0, 0.5, 4.0, initial_state=q0, sampling=jaxmr.Sampling(dt=5e-4)
+    )
     lost = system.energy(q0) - system.energy(sol.final_state[:4])
     work = jaxmr.dissipated_work(sol)
     assert float(lost) > 0.3 * float(system.energy(q0))  # it did damp
@@ -67,7 +69,14 @@ def test_force_excited_quarter_car_and_sdof_resonance():
     w = np.sqrt(k / m)
     sdof = jaxmr.SingleDegreeOfFreedom(m, NO_DAMPER, damping=c, stiffness=k)
     force = jaxmr.Sine(10.0, w / (2 * np.pi))
-    sol = jaxmr.simulate_system(sdof, force, 0.0, 3.0, dt=2e-4, substeps=2)
+    sol = jaxmr.simulate_system(
+        sdof,
+        force,
+        0.0,
+        3.0,
+        sampling=jaxmr.Sampling(dt=2e-4),
+        integrator=jaxmr.FixedStep(substeps=2),
+    )
     late = sol["body_position"][sol.ts > 2.0]
     assert float(jnp.max(jnp.abs(late))) == pytest.approx(10.0 / (c * w), rel=0.01)
     # Force-excited quarter car: the ground stays at zero, the force acts on the wheel.
@@ -93,7 +102,9 @@ def test_sample_and_hold_with_delay():
     damper = jaxmr.Damper(NO_DAMPER)
     sdof = jaxmr.SingleDegreeOfFreedom(1.0, damper, stiffness=1.0)
     for delay in (0, 1, 2):
-        sol = jaxmr.simulate_system(sdof, 0.0, Ramp(), 0.008, delay=delay)
+        sol = jaxmr.simulate_system(
+            sdof, 0.0, Ramp(), 0.008, sampling=jaxmr.Sampling(delay=delay)
+        )
         np.testing.assert_array_equal(sol.command, np.arange(8.0))
         # The command computed at sample k acts from sample k + delay; before that,
         # the first command (0) is held.
@@ -144,7 +155,18 @@ def test_bad_input_is_a_clear_error():
     with pytest.raises(TypeError, match="system"):
         jaxmr.simulate_system(MR, 0.0, 0.0, 1.0)
     with pytest.raises(ValueError, match="`dt` must be a positive"):
-        jaxmr.simulate_system(car(), 0.0, 0.0, 1.0, dt=0.0)
+        jaxmr.Sampling(dt=0.0)
+    with pytest.raises(ValueError, match="`delay` must be a whole number"):
+        jaxmr.Sampling(delay=-1)
+    # (As for `system`, the jaxtyping hook reports these two first; jaxmr's own
+    # messages say "`integrator` must be jaxmr.FixedStep(substeps)" and "`sampling`
+    # must be a jaxmr.Sampling(dt, delay)".)
+    with pytest.raises(TypeError, match="integrator"):
+        jaxmr.simulate_system(car(), 0.0, 0.0, 1.0, integrator=jaxmr.Adaptive())
+    with pytest.raises(TypeError, match="sampling"):
+        jaxmr.simulate_system(car(), 0.0, 0.0, 1.0, sampling=1e-3)  # pyright: ignore
+    with pytest.raises(TypeError, match="unexpected keyword argument 'dtt'"):
+        jaxmr.simulate_system(car(), 0.0, 0.0, 1.0, dtt=1e-3)
     with pytest.raises(ValueError, match="`initial_state` must have shape"):
         jaxmr.simulate_system(car(), 0.0, 0.0, 0.1, initial_state=jnp.zeros(3))
     with pytest.raises(ValueError, match=r"lie in \[0, i_max\]"):
@@ -197,7 +219,42 @@ def test_a_road_too_coarse_or_too_short_for_the_simulation_is_an_error():
     key = jax.random.key(0)
     coarse = jaxmr.iso8608_road("C", 5.0, 1.0, key, dt=2e-3)
     with pytest.raises(Exception, match="sampled more coarsely"):
-        jaxmr.simulate_system(car(), coarse, 0.0, 0.5, dt=1e-3)
+        jaxmr.simulate_system(car(), coarse, 0.0, 0.5, sampling=jaxmr.Sampling(dt=1e-3))
     short = jaxmr.iso8608_road("C", 20.0, 0.2, key)
     with pytest.raises(Exception, match="ends before"):
         jaxmr.simulate_system(car(), short, 0.0, 0.5)
+
+
+def test_the_deprecated_loop_keywords_warn_and_give_the_same_run():
+    # `dt`, `substeps` and `delay` became `sampling=Sampling(dt, delay)` and
+    # `integrator=FixedStep(substeps)`; for one release the old keywords still work,
+    # with a warning naming the replacement, and run the very same simulation (equal
+    # to the last bit: the same static settings reach the same compiled function).
+    args = (car(), jaxmr.Sine(0.01, 2.0), jaxmr.Skyhook(2000.0, 1.0), 0.1)
+    new = jaxmr.simulate_system(
+        *args, sampling=jaxmr.Sampling(dt=5e-4, delay=2), integrator=jaxmr.FixedStep(2)
+    )
+    replacement = (
+        r"pass sampling=jaxmr.Sampling\(dt=0.0005, delay=2\) and "
+        r"integrator=jaxmr.FixedStep\(substeps=2\) instead"
+    )
+    with pytest.warns(DeprecationWarning, match=replacement):
+        old = jaxmr.simulate_system(*args, dt=5e-4, substeps=2, delay=2)
+    for field in ("states", "command", "applied"):
+        np.testing.assert_array_equal(getattr(old, field), getattr(new, field))
+    assert old.dt == new.dt == 5e-4
+    # Not the defaults: the keywords were relayed, not dropped.
+    assert jaxmr.simulate_system(*args).ts.shape != new.ts.shape
+    with pytest.raises(TypeError, match="give `sampling` alone"):
+        jaxmr.simulate_system(*args, sampling=jaxmr.Sampling(), dt=1e-3)
+    with pytest.raises(TypeError, match="give `integrator` alone"):
+        jaxmr.simulate_system(*args, integrator=jaxmr.FixedStep(), substeps=4)
+
+    rig = jaxmr.sas_rig()
+    new = jaxmr.free_decay(
+        rig, 0.0, duration=0.02, sampling=jaxmr.Sampling(dt=2e-3, delay=0)
+    )
+    with pytest.warns(DeprecationWarning, match=r"free_decay: `dt`, `delay` are"):
+        old = jaxmr.free_decay(rig, 0.0, duration=0.02, dt=2e-3, delay=0)
+    np.testing.assert_array_equal(old.states, new.states)
+    assert new.ts.shape == (10,)

@@ -151,7 +151,8 @@ def _setup(where, space=True):
     from jaxmr._tune.loss import Setup
     from jaxmr._tune.space import as_tuple_where
 
-    return Setup(space, as_tuple_where(where), jaxmr.comfort, T, 1e-3, 4, 1)
+    loop = (jaxmr.Sampling(dt=1e-3, delay=1), jaxmr.FixedStep(4))
+    return Setup(space, as_tuple_where(where), jaxmr.comfort, T, *loop)
 
 
 def test_tuning_gradient_matches_finite_differences():
@@ -453,9 +454,8 @@ def test_worst_share_tunes_the_worst_sample():
             None,
             jaxmr.comfort,
             T,
-            1e-3,
-            4,
-            1,
+            jaxmr.Sampling(dt=1e-3, delay=1),
+            jaxmr.FixedStep(4),
             share,
         )
         # `prepare` hands back the hard pair, as every tuner judges it; the gradient
@@ -522,3 +522,62 @@ def test_padded_roads_leave_the_mean():
     # Samples x roads: the mask applies along the roads.
     values = jnp.array([[1.0, 3.0, 9.0], [3.0, 5.0, 9.0]])
     assert float(mean_or_inf(values, jnp.array([True, True, False]))) == 3.0
+
+
+class _Relayed(Exception):
+    """Raised by a stand-in for the tuners' shared start, carrying what it was given."""
+
+
+def test_the_tuners_deprecated_loop_keywords_warn_and_relay_the_same_settings(
+    monkeypatch,
+):
+    # `dt`, `substeps` and `delay` became `sampling=` and `integrator=`. The old
+    # keywords must reach the loss as the same objects (the loss is a function of
+    # them, so the result is the same): checked where every tuner hands them on, then
+    # one real run compared to the last bit.
+    import importlib
+
+    # By path: `jaxmr._tune.evaluate` as an attribute is the function of that name.
+    evaluate_module, gradient_module, search_module = (
+        importlib.import_module(f"jaxmr._tune.{name}")
+        for name in ("evaluate", "gradient", "search")
+    )
+
+    def relay(*args):
+        raise _Relayed(args)
+
+    for module in (gradient_module, search_module):
+        monkeypatch.setattr(module, "prepare", relay)
+    monkeypatch.setattr(evaluate_module, "_evaluate", relay)
+    sampling, integrator = jaxmr.Sampling(dt=5e-4, delay=2), jaxmr.FixedStep(2)
+    old = dict(dt=5e-4, substeps=2, delay=2)
+    budget = dict(parameters=c_sky, simulations=100)
+    calls = {
+        "tune": lambda **kw: jaxmr.tune(CAR, FAR, TRAIN, T, parameters=c_sky, **kw),
+        "random_search": lambda **kw: jaxmr.random_search(
+            CAR, FAR, TRAIN, T, **budget, **kw
+        ),
+        "cma_es": lambda **kw: jaxmr.cma_es(CAR, FAR, TRAIN, T, **budget, **kw),
+        "evaluate": lambda **kw: jaxmr.evaluate(CAR, FAR, TRAIN, T, **kw),
+    }
+    for who, call in calls.items():
+        with pytest.raises(_Relayed) as new:
+            call(sampling=sampling, integrator=integrator)
+        with pytest.warns(DeprecationWarning, match=rf"{who}: .*jaxmr.Sampling"):
+            with pytest.raises(_Relayed) as given:
+                call(**old)
+        assert new.value.args == given.value.args, who
+        assert sampling in given.value.args[0] and integrator in given.value.args[0]
+    monkeypatch.undo()
+
+    # A real run, old keywords (at their defaults) against none.
+    with pytest.warns(DeprecationWarning, match="random_search"):
+        old_run = jaxmr.random_search(
+            CAR, FAR, TRAIN, T, **budget | dict(simulations=4), population=2,
+            dt=1e-3, substeps=4, delay=1,
+        )  # fmt: skip
+    new_run = jaxmr.random_search(
+        CAR, FAR, TRAIN, T, **budget | dict(simulations=4), population=2
+    )
+    assert old_run.history == new_run.history
+    assert old_run.loss == new_run.loss

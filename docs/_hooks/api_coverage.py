@@ -1,9 +1,10 @@
 """MkDocs hook: the API reference documents every public name, and only real ones.
 
-Every public name of `jaxmr`, `jaxmr.data` and `jaxmr.plot` must have a `::: name`
-block (mkdocstrings) in `docs/api/*.md`: `mkdocs build` fails otherwise, so a new
-public name cannot ship undocumented. `tests/test_docs.py` runs the same check without
-MkDocs.
+Every public name of `jaxmr` and of its public submodules (`jaxmr.data`, `jaxmr.plot`,
+`jaxmr.templates`, ...: every module of the package whose name does not start with an
+underscore) must have a `::: name` block (mkdocstrings) in `docs/api/*.md`: `mkdocs
+build` fails otherwise, so a new public name, or a new public module, cannot ship
+undocumented. `tests/test_docs.py` runs the same check without MkDocs.
 """
 
 import re
@@ -13,7 +14,16 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
 API = ROOT / "docs" / "api"
-MODULES = ("jaxmr", "jaxmr.data", "jaxmr.plot")
+PACKAGE = ROOT / "jaxmr"
+# The package and its public submodules, found on disk: a new one is checked too.
+MODULES = ("jaxmr",) + tuple(
+    sorted(
+        f"jaxmr.{path.stem if path.suffix else path.name}"
+        for path in PACKAGE.iterdir()
+        if not path.name.startswith("_")
+        and (path.suffix == ".py" or (path / "__init__.py").is_file())
+    )
+)
 _DIRECTIVE = re.compile(r"^:::\s+(\S+)\s*$", re.MULTILINE)
 
 

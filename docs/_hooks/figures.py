@@ -24,7 +24,9 @@ URI = "figures"  # where the pages find them: `figures/<name>.png` from the site
 
 
 def _quick_example():
-    # README's quick example, as printed there (one panel, three currents).
+    # The quick example of the getting-started page and the README, as printed there
+    # (one panel, three currents); the README shows this figure from
+    # docs/_static/quick_example.png.
     import jax.numpy as jnp
 
     import jaxmr

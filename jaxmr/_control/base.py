@@ -110,7 +110,7 @@ class AbstractController(eqx.Module):
         self, measurement: dict[str, Scalar], state: PyTree, plant: DamperPlant
     ) -> tuple[Scalar, PyTree]:
         """The command [A] from the measurements (names in
-        `jaxmr.MEASUREMENT_NAMES`), the controller state and the damper, and the next
+        `jaxmr.constants.MEASUREMENT_NAMES`), the controller state and the damper, and the next
         controller state."""
 
 

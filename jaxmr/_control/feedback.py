@@ -66,7 +66,7 @@ class ForceFeedback(AbstractController):
     **Arguments:**
 
     - `network`: the map $g$ from the feature vector to a dimensionless force.
-    - `features`: measurement names (`jaxmr.MEASUREMENT_NAMES` or the system's own).
+    - `features`: measurement names (`jaxmr.constants.MEASUREMENT_NAMES` or the system's own).
     - `scales`: $s_k$, one per feature, in the feature's unit (e.g. m/s), > 0.
     - `i_max`: the top of the current range $I_\max$ [A].
     - `temperature`: $T \ge 0$; 0 (default) is the hard law.

@@ -5,6 +5,7 @@
 - `residual.py`: the simulation, the residual and its Jacobian;
 - `solver.py`: the Levenberg–Marquardt loop, starts and scaling;
 - `result.py`: the result and its statistics;
+- `band.py`: the prediction band from the parameters' uncertainty;
 - `fitting.py`: `fit` and `fit_each`;
 - `system.py`: `fit_system` (a whole machine from its response, the same engine);
 - `templates.py`: data-scaled initial models;
@@ -13,6 +14,11 @@
 - `score.py`: prediction and scores.
 """
 
+from .band import (
+    PredictionBand as PredictionBand,
+    prediction_band as prediction_band,
+    prediction_band_from_covariance as prediction_band_from_covariance,
+)
 from .data import FitData as FitData, StepPolicy as StepPolicy, pack as pack
 from .design import (
     Design as Design,
@@ -21,7 +27,7 @@ from .design import (
     sine_grid as sine_grid,
 )
 from .fitting import fit as fit, fit_each as fit_each
-from .result import FitResult as FitResult
+from .result import FitResult as FitResult, StopReason as StopReason
 from .score import (
     moving_average as moving_average,
     nrmse as nrmse,
@@ -30,6 +36,8 @@ from .score import (
     record_nrmse as record_nrmse,
 )
 from .select import (
+    FitEnded as FitEnded,
+    FitStarted as FitStarted,
     ModelScore as ModelScore,
     Selection as Selection,
     compare_models as compare_models,
@@ -37,7 +45,10 @@ from .select import (
     score_table as score_table,
     select_model as select_model,
 )
-from .solver import FastLevenbergMarquardt as FastLevenbergMarquardt
+from .solver import (
+    FastLevenbergMarquardt as FastLevenbergMarquardt,
+    ProgressPrinter as ProgressPrinter,
+)
 from .system import SystemRecord as SystemRecord, fit_system as fit_system
 from .templates import (
     MODEL_TEMPLATES as MODEL_TEMPLATES,

@@ -195,10 +195,21 @@ class FitData(eqx.Module):
         return mask
 
 
-def _per_experiment(value, n: int, what: str, item: str = "experiment") -> np.ndarray:
-    """A non-negative duration [s] per experiment (or record, `item`) from `None`, a
-    number or a sequence."""
-    array = np.asarray(0.0 if value is None else value, dtype=float)
+def per_experiment(
+    value, experiments: Sequence, what: str, item: str = "experiment"
+) -> np.ndarray:
+    """`discard` or `smoothing` (`what`) [s], one per experiment (or record, `item`):
+    from `None` (each experiment's own attribute `what`, as `jaxmr.data.Experiment`
+    carries it; 0 for anything without it), a number for all, one per experiment, or a
+    function of the list of experiments giving one of these (e.g.
+    `jaxmr.data.utfsm_first_cycle`). Every value finite and >= 0."""
+    experiments = list(experiments)
+    n = len(experiments)
+    if callable(value):
+        value = value(experiments)
+    if value is None:
+        value = [float(getattr(e, what, 0.0)) for e in experiments]
+    array = np.asarray(value, dtype=float)
     if array.ndim > 1 or (array.ndim == 1 and array.shape[0] != n):
         raise ValueError(
             f"`{what}` must be one number or one per {item} ({n}), got shape "
@@ -309,7 +320,8 @@ def pack(
     - `policy`: the `StepPolicy` (default `StepPolicy()`).
     - `weighting`: `"nrmse"` (each experiment weighted by 1/(std(F)·sqrt(N)), so the
       loss is half the sum of squared NRMSEs) or `"force"` (unweighted).
-    - `discard`, `smoothing`: [s], one number or one per experiment (see `fit`).
+    - `discard`, `smoothing`: [s], one number or one per experiment, `None`: each
+      experiment's own (see `fit`).
     - `lanes`: how many scans the steps are laid out in (default `default_lanes`):
       `len(experiments)` is the padded layout, 1 packs everything into one scan.
 
@@ -322,8 +334,8 @@ def pack(
         raise ValueError(f"`weighting` must be 'nrmse' or 'force', got {weighting!r}.")
     policy = StepPolicy() if policy is None else policy
     n = len(experiments)
-    discard = _per_experiment(discard, n, "discard")
-    widths = _per_experiment(smoothing, n, "smoothing")
+    discard = per_experiment(discard, experiments, "discard")
+    widths = per_experiment(smoothing, experiments, "smoothing")
     lanes = default_lanes(n) if lanes is None else int(lanes)
     if lanes < 1:
         raise ValueError(f"`lanes` must be >= 1, got {lanes}.")

@@ -39,7 +39,7 @@ import numpy as np
 from .._misc import warn_if_float32
 from .._signal import AbstractSignal, Sine
 from ..data._experiment import Experiment
-from .data import StepPolicy, _per_experiment, as_step_policy, pack, pad_all
+from .data import StepPolicy, as_step_policy, pack, pad_all, per_experiment
 from .fitting import _split_model
 from .residual import DIVERGED, residuals
 from .result import (
@@ -224,21 +224,20 @@ def sine_grid(
     return tests
 
 
-def _processing(value, experiments, what: str, candidates: int) -> np.ndarray:
-    """`discard` or `smoothing` [s] per test (candidates, then `already`): None, a
-    number, a function of the experiments (as `jaxmr.data.utfsm_first_cycle`), or one
-    per test."""
-    n = len(experiments)
-    if callable(value):
-        value = value(list(experiments))
-    elif np.ndim(value) == 1 and n > candidates and len(value) == candidates:
+def _check_one_per_test(value, n: int, candidates: int, what: str) -> None:
+    """One value per candidate when tests are also `already` run is ambiguous."""
+    if (
+        not callable(value)
+        and np.ndim(value) == 1
+        and n > candidates
+        and len(value) == candidates
+    ):
         raise ValueError(
             f"`{what}`: one value per candidate ({candidates}) but tests are also "
             f"`already` run: give one per test ({n}: the candidates', then those "
             "of `already`), one number, or a function of a list of experiments "
             "(e.g. jaxmr.data.utfsm_first_cycle)."
         )
-    return _per_experiment(value, n, what, "test (candidates, then `already`)")
 
 
 def _information(free, static, motions, policy, discard, smoothing, batch_size):
@@ -523,7 +522,7 @@ def design_experiments(
 
     - `model`: a hysteresis model or `Damper` whose free parameters (those not
       `jaxmr.Fixed`; wrapped in `Positive`/`Bounded` as for `fit`) are to be
-      identified, at its values (e.g. a `jaxmr.MODEL_TEMPLATES` start, a published
+      identified, at its values (e.g. a `jaxmr.templates.MODEL_TEMPLATES` start, a published
       model, `result.constrained` of an earlier fit), or a `FitResult` (its
       `constrained` model).
     - `candidates`: the menu: `jaxmr.data.Experiment`s (or anything with `t`, `x`,
@@ -551,8 +550,9 @@ def design_experiments(
       scored samples in all each leave an NRMSE $\rho$ has $s \approx
       \rho\sqrt{n/N}$). The standard errors scale with it; the plan does not depend
       on it.
-    - `discard`, `smoothing`: [s] as for `fit`: a number for all tests, one per
-      test (the candidates', then those of `already`), or a function of a list of
+    - `discard`, `smoothing`: [s] as for `fit`: `None` (default: each test's own,
+      `Experiment.discard` and `.smoothing`), a number for all tests, one per test
+      (the candidates', then those of `already`), or a function of a list of
       experiments giving one per experiment (e.g. `jaxmr.data.utfsm_first_cycle`).
     - `integrator`: the `StepPolicy` (as `fit`).
     - `batch_size`: simulate this many tests at a time (`None`: all at once, fastest;
@@ -604,8 +604,11 @@ def design_experiments(
         )
 
     tests = candidates + already
-    discard = _processing(discard, tests, "discard", n)
-    smoothing = _processing(smoothing, tests, "smoothing", n)
+    item = "test (candidates, then `already`)"
+    _check_one_per_test(discard, len(tests), n, "discard")
+    _check_one_per_test(smoothing, len(tests), n, "smoothing")
+    discard = per_experiment(discard, tests, "discard", item)
+    smoothing = per_experiment(smoothing, tests, "smoothing", item)
     motions = [_motion(e, j) for j, e in enumerate(tests)]
     information, spread, count = _information(
         free,

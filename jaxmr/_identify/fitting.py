@@ -13,13 +13,21 @@ import optimistix as optx
 from .._channel import ChannelDelay
 from .._current_law import ConstantLaw, is_law
 from .._damper import Damper
-from .._distribute import BATCH, batch_mesh, gather, spread
+from .._distribute import batch_mesh, gather, spread
 from .._hysteresis import AbstractHysteresis
 from .._misc import warn_if_float32
 from .._parameter import free_filter
-from .data import FitData, StepPolicy, as_step_policy, pack, pad_all, stack
+from .data import (
+    FitData,
+    StepPolicy,
+    as_step_policy,
+    pack,
+    pad_all,
+    per_experiment,
+    stack,
+)
 from .residual import residuals, simulate, simulate_jit, value_and_jacobian
-from .result import FitResult, assemble, statistics, statistics_from
+from .result import FitResult, assemble, kept_groups, statistics, statistics_from
 from .solver import (
     FastLevenbergMarquardt,
     column_scale,
@@ -91,11 +99,10 @@ def _lanes_on_devices(data: FitData) -> FitData:
     """The lanes split over the process's devices (GPUs, or CPU cores as devices with
     `XLA_FLAGS=--xla_force_host_platform_device_count=N`), each device scanning its
     own lanes, when they divide evenly; else, or across processes, as they are."""
-    devices = jax.local_devices()
+    mesh = batch_mesh(local=True)
     lanes = data.step.shape[0]
-    if jax.process_count() > 1 or len(devices) == 1 or lanes % len(devices):
+    if jax.process_count() > 1 or mesh is None or lanes % mesh.size:
         return data
-    mesh = jax.sharding.Mesh(np.array(devices), (BATCH,))
     where = lambda d: (d.inputs, d.step, d.reset)
     return eqx.tree_at(where, data, spread(where(data), mesh))
 
@@ -105,8 +112,9 @@ def _report(free, static, data, outcome, stats_data, threshold):
     data with shorter steps: the fixed step's derivative converges more slowly than
     its force, d/dγ of the brake was 16 % off at 0.5 ms steps for n < 1)."""
     simulated = np.asarray(simulate_jit(eqx.combine(free, static), data))
-    n_obs = sum(data.kept_counts)
-    stats = statistics(residuals, free, static, stats_data, None, n_obs)
+    # Each experiment's residual rows (refinement shortens steps, not samples).
+    groups = kept_groups(data.kept_counts)
+    stats = statistics(residuals, free, static, stats_data, None, groups)
     return assemble(
         free,
         static,
@@ -132,8 +140,6 @@ def fit(
     max_steps: int = 200,
     patience: int = 8,
     ftol: float = 1e-4,
-    rtol: float = 1e-8,
-    atol: float = 1e-10,
     progress: bool | Callable = True,
     discard=None,
     smoothing=None,
@@ -141,6 +147,7 @@ def fit(
     solver: optx.AbstractLeastSquaresSolver | None = None,
     lanes: int | None = None,
     statistics_refinement: int = 4,
+    stop=None,
 ) -> FitResult:
     r"""Fit a damper model to measured experiments by least squares.
 
@@ -161,21 +168,22 @@ def fit(
     current), except those wrapped in `jaxmr.Fixed`. Wrap a parameter in
     `jaxmr.Positive` or `jaxmr.Bounded` to constrain it.
 
-    Stopping: LM's own test (`rtol`, `atol`), or stalled progress — the best loss has
-    not improved by a relative `ftol` in `patience` steps, or in 3 accepted steps
-    (steps that lowered it) — or `max_steps`, or a
-    failed solve (reported as failed). The default `ftol = 1e-4` is far below what
-    noise makes significant (the loss of N residuals at the noise floor fluctuates by
-    ~sqrt(2/N), 1.4 % for N = 10 000). Ctrl-C stops the fit with the best parameters so
-    far (`result.interrupted`).
+    Stopping (`result.stop`, a `jaxmr.StopReason`): LM's own test (the `solver`'s
+    `rtol`, `atol`), or stalled progress — the best loss has not improved by a
+    relative `ftol` in `patience` steps, or in 3 accepted steps (steps that lowered
+    it) — or `max_steps`, or a failed solve (reported as failed). The default
+    `ftol = 1e-4` is far below what noise makes significant (the loss of N residuals
+    at the noise floor fluctuates by ~sqrt(2/N), 1.4 % for N = 10 000). Ctrl-C, or
+    the caller's `stop` flag, stops the fit with the best parameters so far
+    (`result.interrupted`).
 
     **Arguments:**
 
     - `model`: a hysteresis model or `Damper`, its values the initial guess.
     - `experiments`: `jaxmr.data.Experiment`s (with force), any lengths and rates.
-    - `integrator`: a `StepPolicy` (default `StepPolicy()`: steps of at most 1 ms
-      and 25 µm of travel, per experiment) or `FixedStep(k)` (k steps per sample
-      interval for every experiment).
+    - `integrator`: a `StepPolicy` (default `StepPolicy()`: each experiment's steps
+      within the limits of its kind of device, given there) or `FixedStep(k)` (k
+      steps per sample interval for every experiment).
     - `starts`: `None` (one start), an int $n$ (the model plus $n-1$ random starts,
       each free parameter's value multiplied by a log-uniform factor within
       `spread`), or a sequence of models. All starts run as one batch; the best is
@@ -183,18 +191,23 @@ def fit(
     - `progress`: print a line every few seconds (True), nothing (False), or a
       callable `progress(step, loss)`.
     - `discard`: the start [s] of each experiment left out of the residual (one number
-      or one per experiment), e.g. the first cycle of a sine test: the simulation
+      or one per experiment; `None`, the default: each experiment's own
+      `Experiment.discard`), e.g. the first cycle of a sine test: the simulation
       still starts at the first sample, so the state is right where scoring begins.
     - `smoothing`: the width [s] of a centred moving average the data's force went
-      through (one number or one per experiment, 0: none); the simulated force goes
-      through the same before it is compared (e.g. the UTFSM tests, smoothed over a
-      tenth of the period: `jaxmr.data.utfsm_smoothing`). `rmse` and `nrmse` are of
-      the smoothed force too.
+      through (one number or one per experiment, 0: none; `None`, the default: each
+      experiment's own `Experiment.smoothing`); the simulated force goes through the
+      same before it is compared (e.g. the UTFSM tests, smoothed over a tenth of the
+      period: `jaxmr.data.utfsm_smoothing`, which `load_utfsm` sets). `rmse` and
+      `nrmse` are of the smoothed force too.
     - `solver`: an optimistix least-squares solver (default
-      `FastLevenbergMarquardt(rtol, atol)`).
+      `FastLevenbergMarquardt()`; its `rtol`, `atol` are LM's convergence test).
     - `lanes`: how many scans the experiments are packed into (default: up to 8).
     - `statistics_refinement`: the standard errors come from a Jacobian with steps
       this many times shorter than the fit's (1: the fit's own).
+    - `stop`: a `threading.Event` (anything with `is_set()`), e.g. set from another
+      thread or a signal handler: checked after every step, it stops the fit as
+      Ctrl-C does.
 
     **Returns:** a `FitResult`.
     """
@@ -210,7 +223,7 @@ def fit(
     _check_enough_data(free, data)
     _check_current_laws(model, experiments)
     if solver is None:
-        solver = FastLevenbergMarquardt(rtol=rtol, atol=atol)
+        solver = FastLevenbergMarquardt()
     scale = column_scale(residuals, free, static, data, None)
     if starts is None:
         ys = jax.tree.map(lambda a: a[None], free)
@@ -229,6 +242,7 @@ def fit(
         patience,
         ftol,
         progress_printer(progress),
+        stop=stop,
     )
     losses = [o.loss if np.isfinite(o.loss) else np.inf for o in outcomes]
     best = int(np.argmin(losses))
@@ -270,8 +284,6 @@ def fit_each(
     max_steps: int = 200,
     patience: int = 8,
     ftol: float = 1e-4,
-    rtol: float = 1e-8,
-    atol: float = 1e-10,
     progress: bool | Callable = True,
     discard=None,
     smoothing=None,
@@ -279,6 +291,7 @@ def fit_each(
     solver: optx.AbstractLeastSquaresSolver | None = None,
     shard: bool = True,
     statistics_refinement: int = 4,
+    stop=None,
 ) -> list[FitResult]:
     """Fit `model` to each experiment separately, all in one batched solve.
 
@@ -288,8 +301,8 @@ def fit_each(
     the longest (padding adds no residual). With several devices and `shard=True`
     the batch is split across them with `jax.sharding` (a 1-D mesh of
     `jax.devices()`), padded with copies of its last problem to a multiple of the
-    device count and trimmed after; not over several CPU devices of one process,
-    where a large batch hung (use processes: one CPU device each). The problems run
+    device count and trimmed after (CPU cores too, as host devices: see
+    `jaxmr.devices.configure_cpu`). The problems run
     16 at a time on each device, so each one's result is the same bits whatever the
     number of problems, devices or processes (with at least 16 problems per device).
 
@@ -297,7 +310,7 @@ def fit_each(
     `jax.distributed.initialize()` and make the same call with the same experiments
     in every process. The mesh then spans every process's devices, each process
     simulates and fits its own slice of the batch, and every process gets all the
-    results (README, "Scale-out"). jaxmr itself never schedules work.
+    results (docs/scale-out.md). jaxmr itself never schedules work.
 
     **Arguments:** as `fit` (no `starts`), plus `shard`; `model` may also be a
     sequence of models of one structure, one start per experiment (their free
@@ -327,12 +340,8 @@ def fit_each(
     free, static = _split_model(model)
     policy = as_step_policy(integrator)
     n = len(experiments)
-    discards = np.broadcast_to(
-        np.asarray(0.0 if discard is None else discard, float), (n,)
-    )
-    widths = np.broadcast_to(
-        np.asarray(0.0 if smoothing is None else smoothing, float), (n,)
-    )
+    discards = per_experiment(discard, experiments, "discard")
+    widths = per_experiment(smoothing, experiments, "smoothing")
     options = [
         dict(weighting=weighting, discard=float(d), smoothing=float(w), lanes=1)
         for d, w in zip(discards, widths)
@@ -341,13 +350,6 @@ def fit_each(
     for problem in problems:
         _check_enough_data(free, problem, f"experiment {problem.names[0]!r}: ")
     mesh = batch_mesh() if shard else None
-    if mesh is not None and jax.process_count() == 1:
-        if all(d.platform == "cpu" for d in mesh.devices.flat):
-            # Several CPU devices of one process (XLA_FLAGS host devices): 256 brake
-            # fits split over 2 of them hung in the LM step with the CPU idle
-            # (2026-11-24; 8 ran), while the same batch over 2 processes ran
-            # (benchmarks/fit_each_scaling.py). One CPU device per process is safe.
-            mesh = None
     devices = 1 if mesh is None else mesh.size
     chunk = min(FIT_EACH_CHUNK, -(-n // devices))
     # Padded to whole chunks on every device.
@@ -361,7 +363,7 @@ def fit_each(
         ys = jax.tree.map(lambda *a: jnp.stack(a), *frees)
     ys = spread(ys, mesh)
     if solver is None:
-        solver = FastLevenbergMarquardt(rtol=rtol, atol=atol)
+        solver = FastLevenbergMarquardt()
     scale = column_scale(residuals, free, static, problems[0], None)
     best_y, outcomes = iterate(
         solver,
@@ -374,6 +376,7 @@ def fit_each(
         progress_printer(progress),
         chunk=chunk,
         mesh=mesh,
+        stop=stop,
     )
     # Every problem padded to one shape (and its refined data to another): the
     # reports then share one compiled simulation and one Jacobian, not one each.
@@ -398,7 +401,9 @@ def fit_each(
     for p in range(n):
         free_p = jax.tree.map(lambda a, p=p: a[p], best)
         data = padded[p]
-        stats = statistics_from(r[p], J[p], free_p, static, sum(data.kept_counts))
+        stats = statistics_from(
+            r[p], J[p], free_p, static, kept_groups(data.kept_counts)
+        )
         results.append(
             assemble(
                 free_p,

@@ -13,6 +13,7 @@ import jax.numpy as jnp
 
 from .._channel import delayed, split_channel
 from .._damper import as_damper
+from .._misc import rk4_stages
 from .._parameter import unwrap
 from .data import FitData
 
@@ -36,14 +37,12 @@ def _lane(damper, inputs, step, reset, experiments: int):
 
     def body(y, xs):
         stage, h, start, y_start = xs
-        (x0, v0, i0), (xm, vm, im), (x1, v1, i1) = stage
+        # (x, v, i) at the step's start, midpoint and end.
+        begin, middle, end = stage
         y = jnp.where(start, y_start.astype(y.dtype), y)
-        force = damper.force(y, x0, v0, i0)
-        k1 = damper.rates(y, x0, v0, i0)
-        k2 = damper.rates(y + (h / 2) * k1, xm, vm, im)
-        k3 = damper.rates(y + (h / 2) * k2, xm, vm, im)
-        k4 = damper.rates(y + h * k3, x1, v1, i1)
-        return y + (h / 6) * (k1 + 2 * k2 + 2 * k3 + k4), force
+        force = damper.force(y, *begin)
+        rates = lambda y, s: damper.rates(y, *s)
+        return rk4_stages(rates, y, h, begin, middle, end), force
 
     (x0, v0, i0) = inputs[0, 0]
     y0 = damper.initial_state(x0, v0, i0)

@@ -9,7 +9,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from .data import StepPolicy, as_step_policy, pack, window
+from .data import StepPolicy, as_step_policy, pack, per_experiment, window
 from .residual import simulate_jit
 
 
@@ -32,9 +32,11 @@ def predict_all(
     - `experiments`: `jaxmr.data.Experiment`s (or anything with `t`, `x`, `v`,
       `current`, `name`).
     - `integrator`: the step policy.
-    - `smoothing`: `None`, or the width [s] of a centred moving average applied to the
-      prediction (one for all or one per experiment), as the data's authors applied
-      to the measured force (`jaxmr.data.utfsm_smoothing`).
+    - `smoothing`: the width [s] of a centred moving average applied to the
+      prediction (one for all or one per experiment; 0: none), as the data's authors
+      applied to the measured force (`jaxmr.data.utfsm_smoothing`); `None` (default):
+      each experiment's own `smoothing` (`jaxmr.data.Experiment.smoothing`, 0 for
+      anything without one), so the prediction is comparable with its force.
 
     **Returns:** one NumPy array of forces [N] (torques [N·m]) per experiment, at its
     samples; NaN where a simulation diverged.
@@ -90,11 +92,12 @@ def rmse(simulated, measured, keep=None) -> float:
     return float(np.sqrt(np.mean((simulated - measured) ** 2)))
 
 
-def scored_samples(experiments, start=0.0, until=None) -> list[np.ndarray]:
+def scored_samples(experiments, start=None, until=None) -> list[np.ndarray]:
     """Per experiment, the samples with `t0 + start <= t <= t0 + until` [s] (`start`
-    and `until` one for all or one per experiment; `until=None`: the end)."""
+    and `until` one for all or one per experiment; `start=None`: each experiment's
+    own `discard`; `until=None`: the end)."""
     n = len(experiments)
-    start = np.broadcast_to(np.asarray(0.0 if start is None else start, float), (n,))
+    start = per_experiment(start, experiments, "discard")
     until = np.broadcast_to(np.asarray(np.inf if until is None else until, float), (n,))
     masks = []
     for e, a, b in zip(experiments, start, until):
@@ -107,7 +110,7 @@ def record_nrmse(
     model,
     experiments,
     *,
-    discard=0.0,
+    discard=None,
     until=None,
     smoothing=None,
     remove_mean: bool = False,
@@ -121,7 +124,8 @@ def record_nrmse(
 
     - `model`, `experiments`, `integrator`, `smoothing`: as `predict_all`.
     - `discard`: the start [s] left out of the score, per record or one for all
-      (`jaxmr.data.utfsm_first_cycle` for the UTFSM protocol).
+      (`jaxmr.data.utfsm_first_cycle` for the UTFSM protocol); `None` (default):
+      each record's own `discard` (0 for anything without one).
     - `until`: the end [s] of the scored part, per record or one for all (`None`: the
       record's end).
     - `remove_mean`: score force fluctuations (the NEES protocol).

@@ -8,6 +8,7 @@ The residual function carries its own materialised Jacobian (one forward-mode pa
 scaled once by their Jacobian columns (Moré's scaling, frozen at the start).
 """
 
+import dataclasses
 import time
 from collections.abc import Callable
 from typing import Any
@@ -24,7 +25,7 @@ from .._custom_types import Array, Bool, Float
 from .._distribute import BATCH as MESH_AXIS, to_host
 from .._parameter import Bounded, Fixed, Positive, free_filter, is_parameter
 from .residual import value_and_jacobian, value_and_jacobian_jit
-from .result import Outcome
+from .result import Outcome, StopReason
 
 
 class _LMState(eqx.Module):
@@ -73,7 +74,12 @@ class FastLevenbergMarquardt(optx.AbstractLeastSquaresSolver):
 
     def init(self, fn, y, args, options, f_struct, aux_struct, tags):
         flat, _ = ravel_pytree(y)
-        zeros = lambda s: jnp.zeros(s.shape, s.dtype)
+        # No point accepted yet: the aux (`_lm_fn`'s loss and point) is +inf, not 0,
+        # so that a start whose loss is not finite does not read as a loss of 0 at
+        # the origin (the aux `step` returns until it accepts one).
+        unset = lambda s: jnp.full(
+            s.shape, jnp.inf if jnp.issubdtype(s.dtype, jnp.inexact) else 0, s.dtype
+        )
         residual = jnp.zeros(_size(f_struct), flat.dtype)
         return _LMState(
             first_step=jnp.array(True),
@@ -81,7 +87,7 @@ class FastLevenbergMarquardt(optx.AbstractLeastSquaresSolver):
             radius=jnp.array(1.0, flat.dtype),
             residual=residual,
             jacobian=jnp.zeros((residual.size, flat.size), flat.dtype),
-            aux=jax.tree.map(zeros, aux_struct),
+            aux=jax.tree.map(unset, aux_struct),
             terminate=jnp.array(False),
             result=optx.RESULTS.successful,
         )
@@ -141,13 +147,10 @@ class FastLevenbergMarquardt(optx.AbstractLeastSquaresSolver):
         # A reduced QR (what lineax's `QR` solver does for a tall matrix), written
         # with jax.numpy: inside `shard_map` (`fit_each`'s chunks) lineax refused the
         # vector, whose structure carries the mesh's sharding and the operator's not.
-        lam = 1.0 / radius
-        q, upper = jnp.linalg.qr(
-            jnp.concatenate([jacobian, jnp.sqrt(lam) * jnp.eye(flat.size)])
-        )
-        step = jax.scipy.linalg.solve_triangular(
-            upper, q[: residual.size].T @ residual, lower=False
-        )
+        # The factorisation and the triangular solve take one member at a time (see
+        # `_one_matrix_at_a_time`); the product between them stays batched.
+        q, upper = _damped_qr(jacobian, 1.0 / radius)
+        step = _solve_upper(upper, q[: residual.size].T @ residual)
         result = optx.RESULTS.where(
             jnp.all(jnp.isfinite(step)),
             optx.RESULTS.successful,
@@ -171,6 +174,36 @@ class FastLevenbergMarquardt(optx.AbstractLeastSquaresSolver):
 
     def postprocess(self, fn, y, aux, args, options, state, tags, result):
         return y, aux, {}
+
+
+def _one_matrix_at_a_time(fn):
+    """`fn`, whose LAPACK calls (jaxlib's CPU factorisations and solves) are made one
+    matrix at a time when it is batched (`jax.vmap`: the starts of `fit`, the
+    problems of `fit_each`), in a loop (`jax.custom_batching.sequential_vmap`).
+
+    A batched call whose work exceeds 2e5 flop is split by jaxlib over XLA's CPU
+    thread pool (its `ParallelBatchMap`), and the pool thread that makes the call
+    blocks until the pieces are done. With several host devices
+    (`--xla_force_host_platform_device_count`, as `jaxmr fit` sets) every device's
+    program runs on that same pool: when each pool thread was such a waiter, none
+    was left to run the pieces and the fit hung with the CPU idle (two starts of a
+    Spencer fit on two UTFSM files, 2 devices on 2 cores; `fit_each` over 2 host
+    devices). One matrix is factored on the calling thread. Each matrix gets the
+    same LAPACK routine as in the batched call: the results are the same bits.
+    """
+    return jax.custom_batching.sequential_vmap(fn)
+
+
+@_one_matrix_at_a_time
+def _damped_qr(jacobian, lam):
+    r"""The reduced QR of $[J; \sqrt{\lambda} I]$."""
+    eye = jnp.eye(jacobian.shape[1], dtype=jacobian.dtype)
+    return jnp.linalg.qr(jnp.concatenate([jacobian, jnp.sqrt(lam) * eye]))
+
+
+@_one_matrix_at_a_time
+def _solve_upper(upper, b):
+    return jax.scipy.linalg.solve_triangular(upper, b, lower=False)
 
 
 def _size(struct) -> int:
@@ -408,6 +441,7 @@ def iterate(
     report,
     chunk=None,
     mesh=None,
+    stop=None,
 ):
     """Levenberg–Marquardt on a batch of problems, stepped from Python.
 
@@ -415,16 +449,19 @@ def iterate(
     0 and the data in `args` are batched too). Keeps each member's best parameters,
     stops each on its own convergence, failure or stall (no relative improvement of
     `ftol` in `patience` steps, or in `ACCEPTED_PATIENCE` accepted steps). `chunk`,
-    `mesh`: see `_over_batch`. A `KeyboardInterrupt` stops
-    the loop with the best parameters so far (`interrupted` is then True); any other
-    exception propagates (a programming error is not a fit result).
+    `mesh`: see `_over_batch`. `stop`: a `threading.Event` (anything with `is_set()`)
+    checked after every step: once set, the loop stops with the best parameters so
+    far (`StopReason.INTERRUPTED`; at least one step, the starts' evaluation, is
+    made). A `KeyboardInterrupt` does the same; any other exception propagates (a
+    programming error is not a fit result).
 
     Returns the best ys and one `Outcome` per member (its best loss, the history of
-    the batch's best loss, the steps taken, why it stopped, whether Ctrl-C did it).
+    the batch's best loss, the steps taken, its `StopReason`).
     """
     if isinstance(solver, FastLevenbergMarquardt) and solver.axis_name is None:
-        # A member's Jacobian is then computed when any member accepted its step.
-        solver = FastLevenbergMarquardt(solver.rtol, solver.atol, solver.norm, BATCH)
+        # A member's Jacobian is then computed when any member accepted its step
+        # (`replace`: a subclass stays itself).
+        solver = dataclasses.replace(solver, axis_name=BATCH)
     dynamic, static_state = eqx.partition(
         _init(solver, ys, args, data_axis, chunk, mesh), eqx.is_array
     )
@@ -438,7 +475,7 @@ def iterate(
     failed = np.zeros(n, dtype=bool)
     stalled = np.zeros(n, dtype=bool)
     steps = np.zeros(n, dtype=int)  # each member's own, up to its stop
-    interrupted, k = False, 0
+    interrupted = False
     try:
         for k in range(1, max_steps + 1):
             ys, dynamic, loss, at, done, bad = _step(
@@ -474,50 +511,66 @@ def iterate(
             )
             if not np.any(~(converged | failed | stalled)):
                 break
+            if stop is not None and stop.is_set():
+                interrupted = True
+                break
     except KeyboardInterrupt:
         interrupted = True
-    reasons = []
-    for j in range(n):
-        if interrupted:
-            reasons.append(
-                f"interrupted at step {k}; the best parameters so far are kept"
-            )
-        elif not np.isfinite(best_loss[j]):
-            reasons.append("failed: every evaluated point gave a non-finite loss")
-        elif failed[j]:
-            reasons.append(
-                "failed: the Levenberg–Marquardt solve reported an error (e.g. a "
-                "non-finite step); the best parameters so far are kept"
-            )
-        elif converged[j]:
-            reasons.append("converged (Levenberg–Marquardt's tolerance met)")
-        elif stalled[j]:
-            reasons.append(
-                f"stalled: no relative improvement above {ftol:g} in {patience} "
-                f"steps or {ACCEPTED_PATIENCE} accepted steps (the noise floor)"
-            )
-        else:
-            reasons.append(f"reached max_steps = {max_steps}")
+
+    def why(j) -> StopReason:
+        if interrupted:  # the whole batch: its caller asked to stop
+            return StopReason.INTERRUPTED
+        if not np.isfinite(best_loss[j]):
+            return StopReason.NONFINITE
+        if failed[j]:
+            return StopReason.SOLVER_FAILED
+        if converged[j]:
+            return StopReason.TOLERANCE
+        if stalled[j]:
+            return StopReason.STALLED
+        return StopReason.MAX_STEPS
+
     return best_y, [
-        Outcome(
-            float(best_loss[j]), tuple(history), int(steps[j]), reasons[j], interrupted
-        )
+        Outcome(float(best_loss[j]), tuple(history), int(steps[j]), why(j))
         for j in range(n)
     ]
 
 
+class ProgressPrinter:
+    """A fit's `progress(step, loss)` that prints a line now and then: every
+    `seconds` [s] of wall time (`None`: not by time) and every `steps`-th step
+    (`None`: not by count), e.g. `steps=10` for a log file, which the 2 s of a
+    terminal would leave silent for minutes in a quiet fit. `label` (a plain
+    attribute, may change between fits) and `indent` start the line."""
+
+    def __init__(
+        self,
+        label: str = "fit",
+        *,
+        seconds: float | None = 2.0,
+        steps: int | None = None,
+        indent: str = "  ",
+    ):
+        self.label, self.indent = label, indent
+        self.seconds, self.steps = seconds, steps
+        self._printed = time.monotonic()
+
+    def __call__(self, step: int, loss: float) -> None:
+        now = time.monotonic()
+        due = (self.steps is not None and step % self.steps == 0) or (
+            self.seconds is not None and now - self._printed >= self.seconds
+        )
+        if due:
+            line = f"{self.indent}{self.label} step {step:4d}: loss {loss:.6g}"
+            print(line, flush=True)
+            self._printed = now
+
+
 def progress_printer(progress, label: str = "fit"):
-    """`progress(step, loss)` from `True` (a line every 2 s), `False` or a callable."""
+    """`progress(step, loss)` from `True` (a `ProgressPrinter`: a line every 2 s),
+    `False` or a callable."""
     if callable(progress):
         return progress
     if not progress:
         return lambda step, loss: None
-    last = [time.monotonic()]
-
-    def report(step, loss):
-        now = time.monotonic()
-        if now - last[0] >= 2.0:
-            print(f"  {label} step {step:4d}: loss {loss:.6g}", flush=True)
-            last[0] = now
-
-    return report
+    return ProgressPrinter(label)

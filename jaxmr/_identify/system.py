@@ -17,14 +17,15 @@ import jax.numpy as jnp
 import numpy as np
 import optimistix as optx
 
-from .._closed_loop import _as_controller, simulate_system
+from .._closed_loop import Sampling, _as_controller, simulate_system
 from .._control.base import AbstractController
 from .._custom_types import Array, Float
+from .._integrate import FixedStep
 from .._misc import as_float_array, is_concrete
 from .._parameter import free_filter, unwrap
 from .._signal import AbstractSignal, _is_uniform, as_signal
 from .._systems.base import AbstractSystem
-from .data import _per_experiment
+from .data import per_experiment
 from .fitting import warn_if_float32
 from .result import FitResult, assemble, statistics
 from .solver import (
@@ -131,7 +132,7 @@ class _Simulation(eqx.Module):
 
 def _stack_records(records, system, dt, discard) -> _SystemData:
     n_states = len(system.state_names)
-    skips = _per_experiment(discard, len(records), "discard", "record")
+    skips = per_experiment(discard, records, "discard", "record")
     length = max(r.ts.shape[0] for r in records)
     columns = {"measured": [], "mask": [], "weight": []}
     samples, dts, strides = [], [], []
@@ -218,9 +219,8 @@ def _simulate_records(system, data: _SystemData, sim: _Simulation):
             data.excitations[k],
             sim.controller,
             n * stride * dt,
-            dt=dt,
-            substeps=sim.substeps,
-            delay=sim.delay,
+            sampling=Sampling(dt=dt, delay=sim.delay),
+            integrator=FixedStep(substeps=sim.substeps),
             initial_state=data.initial_states[k],
             throw=False,
         )
@@ -287,12 +287,11 @@ def fit_system(
     max_steps: int = 100,
     patience: int = 8,
     ftol: float = 1e-4,
-    rtol: float = 1e-8,
-    atol: float = 1e-10,
     progress: bool | Callable = True,
     solver: optx.AbstractLeastSquaresSolver | None = None,
     identifiability_threshold: float = 1e-7,
     discard=None,
+    stop=None,
 ) -> FitResult:
     r"""Fit a system's parameters (its damper's included) to measured responses.
 
@@ -331,8 +330,8 @@ def fit_system(
       excitation's own sample time (its linear interpolation is then exact at the
       RK4 stages when the grids line up).
     - `delay`: the controller's delay in samples, as in `simulate_system`.
-    - `max_steps`, `patience`, `ftol`, `rtol`, `atol`, `progress`, `solver`,
-      `identifiability_threshold`: as in `jaxmr.fit`.
+    - `max_steps`, `patience`, `ftol`, `progress`, `solver`,
+      `identifiability_threshold`, `stop`: as in `jaxmr.fit`.
     - `discard`: the start [s] of each record left out of the residual (one number or
       one per record), e.g. a warm-up period that lets a periodic response reach
       steady state from rest: the simulation still starts at $t = 0$.
@@ -381,7 +380,7 @@ def fit_system(
         delay=delay,
     )
     if solver is None:
-        solver = FastLevenbergMarquardt(rtol=rtol, atol=atol)
+        solver = FastLevenbergMarquardt()
     residuals, scaled_residuals = _closed_residuals(static, data, sim)
     scale = column_scale(residuals, free, static, None, None)
     best_y, (outcome,) = iterate(
@@ -393,6 +392,7 @@ def fit_system(
         patience,
         ftol,
         progress_printer(progress),
+        stop=stop,
     )
     free_best = jax.tree.map(lambda a: a[0], multiply(best_y, scale))
     return _system_result(
@@ -405,7 +405,11 @@ def _system_result(free, static, data, sim, residuals, outcome, threshold) -> Fi
     simulated, _ = _simulate_records_jit(model, data, sim)
     mask = np.asarray(data.mask) > 0
     # The residual closes over its own data; `static` gives the parameter values.
-    stats = statistics(residuals, free, static, None, None, int(mask.sum()))
+    # Its rows are record-major, each record padded to one length: a record's own
+    # rows are its scored samples, in time order.
+    length = mask.shape[1]
+    groups = [k * length + np.flatnonzero(m) for k, m in enumerate(mask)]
+    stats = statistics(residuals, free, static, None, None, groups)
     return assemble(
         free,
         static,

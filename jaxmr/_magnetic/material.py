@@ -16,8 +16,7 @@ import numpy as np
 
 from .._current_law import as_parameter
 from .._custom_types import Array, ArrayLike, Bool, Float, Scalar, ScalarLike
-from .._integrate import rk4_step
-from .._misc import as_float_array, check_concrete, is_concrete
+from .._misc import as_float_array, check_concrete, is_concrete, rk4_step
 
 MU_0 = 4e-7 * math.pi  # vacuum permeability [H/m]
 

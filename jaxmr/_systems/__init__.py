@@ -10,7 +10,6 @@ from .quarter_car import (
 from .sas_rig import (
     SASRig as SASRig,
     decay_settling_time as decay_settling_time,
-    free_decay as free_decay,
     inverse_dynamics as inverse_dynamics,
     sas_rig as sas_rig,
     sas_rig_brake as sas_rig_brake,

@@ -133,7 +133,7 @@ class SASRig(AbstractSystem):
     turning at $f$ rev/s), zero at the cam's mid-lift.
 
     States: `alpha1`, `omega1`, `alpha2`, `omega2` [rad, rad/s], absolute angles.
-    Measurements: `jaxmr.MEASUREMENT_NAMES` (body = upper beam [rad], wheel = lower
+    Measurements: `jaxmr.constants.MEASUREMENT_NAMES` (body = upper beam [rad], wheel = lower
     beam, damper = brake: $\theta$, $\dot\theta$, $T_{MR}$ [N·m]; excitation = cam
     lift [m]) plus `wheel_acceleration` [rad/s²], `contact_force` $N$ [N] (≥ 0),
     `tyre_compression` $\delta$ [m] and `spring_force` $k_s(l_{0s} - L)$ [N]
@@ -610,59 +610,6 @@ def sas_rig(damper=None, **overrides) -> SASRig:
 
 
 # -- the thesis's experiments -----------------------------------------------------------
-
-
-@eqx.filter_jit
-def _release_state(rig: SASRig, release):
-    rest = rig.equilibrium()
-    return rig.held_state(rest[1] + release), rest
-
-
-def free_decay(
-    rig: SASRig,
-    controller=0.0,
-    *,
-    release_angle_deg: float = 16.0,
-    duration: float = 15.0,
-    dt: float = 1e-3,
-    substeps: int = 4,
-    delay: int = 1,
-):
-    r"""The source's identification experiment: the body held `release_angle_deg`
-    above its rest angle, the lower beam resting on the still cam, then released.
-
-    The same as `simulate_system(rig, 0.0, controller, duration,
-    initial_state=rig.held_state(rest + release))` with `rest = rig.equilibrium()[1]`.
-    Give currents as `jnp.asarray(i)` or `ConstantCurrent(jnp.asarray(i), i_max)` to
-    reuse one compilation for several currents (a Python float is a static argument
-    of the jitted `simulate_system`).
-
-    **Arguments:**
-
-    - `rig`: a `SASRig`.
-    - `controller`: a constant current [A] or a jaxmr controller (default 0 A).
-    - `release_angle_deg`: the release angle above rest [°] (default 16, the source's).
-    - `duration`, `dt`, `substeps`, `delay`: as in `simulate_system` (15 s, 1 ms, 4, 1).
-
-    **Returns:** a `SystemSolution`; see `decay_settling_time`.
-    """
-    # Imported here: the closed loop imports the systems package, which imports this.
-    from .._closed_loop import simulate_system
-
-    if not isinstance(rig, SASRig):
-        raise TypeError(f"`rig` must be a SASRig, got {type(rig).__name__}.")
-    release = jnp.asarray(release_angle_deg * _DEG, dtype=rig.R.dtype)
-    q0, _ = _release_state(rig, release)
-    return simulate_system(
-        rig,
-        0.0,
-        controller,
-        duration,
-        dt=dt,
-        substeps=substeps,
-        delay=delay,
-        initial_state=q0,
-    )
 
 
 def decay_settling_time(

@@ -6,9 +6,11 @@ import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
+from .._closed_loop import Sampling
 from .._control.base import AbstractController
 from .._control.smooth import with_temperature
 from .._distribute import to_host
+from .._integrate import FixedStep
 from .._systems.base import AbstractSystem
 from .batch import ROADS_EXAMPLE, batch_size, road_batch
 from .loss import Setup, losses
@@ -48,19 +50,19 @@ def prepare(
     bounds,
     objective,
     duration,
-    dt,
-    substeps,
-    delay,
+    sampling: Sampling,
+    integrator: FixedStep,
     worst_share: float = 1.0,
 ):
     """Every tuner's start: the checked inputs, the runs one evaluation simulates, the
     static `Setup` of the loss, the pair, the optimiser's starting variables and the
-    `road_batch` of the roads."""
+    `road_batch` of the roads. `sampling` and `integrator` come checked
+    (`loop_settings`)."""
     runs = check_inputs(system, controller, roads, samples)
     share = check_worst_share(worst_share, samples, who)
     where = as_tuple_where(parameters)
     space = as_space(log_space, bounds, who)
-    setup = Setup(space, where, objective, duration, dt, substeps, delay, share)
+    setup = Setup(space, where, objective, duration, sampling, integrator, share)
     # Every tuner judges, keeps and returns the hard law (T = 0), whatever temperature
     # the controller was handed with: a relaxed law is a device for the gradient, not
     # what runs on the car.

@@ -7,9 +7,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._closed_loop import SystemSolution
+from .._closed_loop import Sampling, SystemSolution, loop_settings
 from .._control.base import AbstractController
 from .._distribute import to_host
+from .._integrate import FixedStep
 from .._systems.base import AbstractSystem
 from .common import prepare, printer, set_temperature, tune_result
 from .loss import comfort, loss_and_grad, losses
@@ -63,12 +64,12 @@ def tune(
     validation=None,
     samples: AbstractSystem | None = None,
     worst_share: float = 1.0,
-    dt: float = 1e-3,
-    substeps: int = 4,
-    delay: int = 1,
+    sampling: Sampling | None = None,
+    integrator: FixedStep | None = None,
     log_space: bool = True,
     bounds: Sequence[tuple[float, float]] | None = None,
     progress: bool | Callable = True,
+    **deprecated,
 ) -> TuneResult:
     r"""Tune controller parameters (and passive ones) by gradient descent through the
     closed-loop simulation, averaged over a batch of roads.
@@ -117,7 +118,9 @@ def tune(
       conditional value at risk (CVaR) of the spread. 1 (default) is the mean over
       every sample; $1/S$ of $S$ samples the worst one alone; 0.3 the worst 30 %.
       Worst-case tuning: a law that must hold on every unit, not on the average one.
-    - `dt`, `substeps`, `delay`: as `simulate_system`.
+    - `sampling`, `integrator`: the controller's timing (a `Sampling`) and the RK4
+      steps per sample (a `FixedStep`), as in `simulate_system`, whose defaults they
+      share; the deprecated `dt`, `substeps` and `delay` still work, as there.
     - `log_space`: optimise logarithms (default: positive parameters, relative
       steps); `False` optimises the values (signed weights, `CurrentSchedule.logits`).
     - `bounds`: optional `(low, high)` per parameter (positive): the parameter is
@@ -126,6 +129,7 @@ def tune(
 
     **Returns:** a `TuneResult`.
     """
+    sampling, integrator = loop_settings("tune", sampling, integrator, deprecated)
     if not isinstance(steps, int) or steps < 1:
         raise ValueError(f"tune: `steps` must be a positive integer, got {steps!r}.")
     if not isinstance(check_every, int) or check_every < 1:
@@ -148,9 +152,8 @@ def tune(
         bounds,
         objective,
         duration,
-        dt,
-        substeps,
-        delay,
+        sampling,
+        integrator,
         worst_share,
     )
     report = printer(progress, "tune step")

@@ -8,7 +8,8 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 
-from .._closed_loop import SystemSolution, simulate_system
+from .._closed_loop import Sampling, SystemSolution, simulate_system
+from .._integrate import FixedStep
 from .._metrics import wk_rms
 from .space import to_values
 
@@ -26,9 +27,8 @@ class Setup:
     where: Callable
     objective: Callable
     duration: float
-    dt: float
-    substeps: int
-    delay: int
+    sampling: Sampling
+    integrator: FixedStep
     # The share of damper samples whose mean the loss is (1: every sample; see
     # `worst_share_weights`).
     worst_share: float = 1.0
@@ -43,13 +43,12 @@ def _one_run(u, system, controller, road, setup: Setup):
         road,
         controller,
         setup.duration,
-        dt=setup.dt,
-        substeps=setup.substeps,
-        delay=setup.delay,
+        sampling=setup.sampling,
+        integrator=setup.integrator,
         throw=False,
         # Unrolled substeps: the reverse pass of tuning's gradient ran 1.5-2x faster
         # (`simulate_system`); past 8 the compile time is not worth it.
-        unroll=min(setup.substeps, 8),
+        unroll=min(setup.integrator.substeps, 8),
     )
     return setup.objective(solution)
 

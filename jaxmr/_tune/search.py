@@ -10,9 +10,10 @@ import jax.numpy as jnp
 import numpy as np
 from jax.flatten_util import ravel_pytree
 
-from .._closed_loop import SystemSolution
+from .._closed_loop import Sampling, SystemSolution, loop_settings
 from .._control.base import AbstractController
 from .._distribute import to_host
+from .._integrate import FixedStep
 from .._systems.base import AbstractSystem
 from .common import finite_min, prepare, printer, tune_result
 from .loss import comfort, population_losses
@@ -47,10 +48,10 @@ def random_search(
     samples: AbstractSystem | None = None,
     worst_share: float = 1.0,
     key: jax.Array | None = None,
-    dt: float = 1e-3,
-    substeps: int = 4,
-    delay: int = 1,
+    sampling: Sampling | None = None,
+    integrator: FixedStep | None = None,
     progress: bool | Callable = False,
+    **deprecated,
 ) -> TuneResult:
     """The simplest derivative-free baseline for `tune`: random parameter sets around
     the start (the start included), scored with the hard law on the same training
@@ -65,6 +66,7 @@ def random_search(
     `spread`, `population`, `key`.
     """
     who = "random_search"
+    sampling, integrator = loop_settings(who, sampling, integrator, deprecated)
     as_space(log_space, bounds, who)  # checks the bounds
     # Candidates are drawn and clipped in log values (or values): no sigmoid here.
     runs, setup, pair, u0, batch = _prepare(
@@ -79,9 +81,8 @@ def random_search(
         None,
         objective,
         duration,
-        dt,
-        substeps,
-        delay,
+        sampling,
+        integrator,
         worst_share,
     )
     trials = simulations // runs
@@ -160,10 +161,10 @@ def cma_es(
     samples: AbstractSystem | None = None,
     worst_share: float = 1.0,
     key: jax.Array | None = None,
-    dt: float = 1e-3,
-    substeps: int = 4,
-    delay: int = 1,
+    sampling: Sampling | None = None,
+    integrator: FixedStep | None = None,
     progress: bool | Callable = False,
+    **deprecated,
 ) -> TuneResult:
     """CMA-ES (Hansen's covariance matrix adaptation evolution strategy, as
     implemented by `evosax`), the strong derivative-free baseline for `tune`: each
@@ -189,6 +190,7 @@ def cma_es(
             'cma_es needs evosax: pip install "jaxmr[search]" (or evosax).'
         ) from error
     who = "cma_es"
+    sampling, integrator = loop_settings(who, sampling, integrator, deprecated)
     runs, setup, pair, u0, batch = _prepare(
         who,
         simulations,
@@ -201,9 +203,8 @@ def cma_es(
         bounds,
         objective,
         duration,
-        dt,
-        substeps,
-        delay,
+        sampling,
+        integrator,
         worst_share,
     )
     flat0, unravel = ravel_pytree(u0)

@@ -12,6 +12,7 @@ from ._csv import (
     write_csv as write_csv,
 )
 from ._experiment import Experiment as Experiment
+from ._files import write_atomically as write_atomically
 from ._loaders import (
     BOUCWEN_BENCHMARK_FS as BOUCWEN_BENCHMARK_FS,
     BoucWenBenchmarkInput as BoucWenBenchmarkInput,

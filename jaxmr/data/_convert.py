@@ -8,7 +8,6 @@ driven by a force, as a plain `t,u,y` CSV (see `convert_dataset`).
 
 import importlib.metadata
 import os
-import uuid
 from collections.abc import Callable
 from pathlib import Path
 from typing import NamedTuple
@@ -16,20 +15,14 @@ from typing import NamedTuple
 import numpy as np
 
 from ._csv import SYSTEM_RECORD, write_csv
+from ._files import write_atomically
 from ._loaders import (
     _UTFSM_NAME,
     load_boucwen_benchmark_train,
     load_nees,
     load_utfsm,
-    utfsm_first_cycle,
-    utfsm_smoothing,
     utfsm_test_conditions,
 )
-
-# What `read_processing` gives for the NEES record: the record starts during the motion,
-# so the hysteretic state at t = 0 is unknown; 0.2 s (600 samples, about 10 switches of
-# the command voltage) is left out of the score, as in the project's own tests.
-NEES_DISCARD = 0.2  # s
 
 _UTFSM_CITATION = (
     "M. Quiroz, thesis data, Universidad Técnica Federico Santa María (Chile); GitHub "
@@ -102,9 +95,8 @@ def _utfsm_names(source: Path) -> list[str]:
 
 def _utfsm_files(source: Path) -> list[_File]:
     files = []
+    # `load_utfsm` sets each test's smoothing and discard, which `write_csv` writes.
     for e in load_utfsm(source):
-        smoothing = float(utfsm_smoothing([e])[0])
-        discard = float(utfsm_first_cycle([e])[0])
         comment = _provenance(
             "utfsm",
             source / f"{e.name}.txt",
@@ -116,8 +108,8 @@ def _utfsm_files(source: Path) -> list[_File]:
             "mm/s, v recomputed from x (the file's column lags by half a sample)",
         )
 
-        def write(path, e=e, comment=comment, smoothing=smoothing, discard=discard):
-            write_csv(e, path, comment=comment, smoothing=smoothing, discard=discard)
+        def write(path, e=e, comment=comment):
+            write_csv(e, path, comment=comment)
 
         files.append(_File(f"{e.name}.csv", write))
     return files
@@ -156,8 +148,8 @@ def _nees_files(source: Path) -> list[_File]:
         "starts during the motion (hysteretic state unknown)",
     )
 
-    def write(path):
-        write_csv(e, path, comment=comment, discard=NEES_DISCARD)
+    def write(path):  # with `load_nees`'s discard (`NEES_DISCARD`)
+        write_csv(e, path, comment=comment)
 
     return [_File(f"{e.name}.csv", write)]
 
@@ -225,18 +217,6 @@ _DATASETS = {
 DATASETS = tuple(_DATASETS)
 
 
-def _write_atomically(write: Callable[[Path], None], target: Path) -> None:
-    # A temporary file in the target's folder (same file system: os.replace is then
-    # atomic), created by an ordinary open so that it gets the usual permissions.
-    temporary = target.with_name(f".{target.name}.{uuid.uuid4().hex[:12]}.tmp")
-    try:
-        write(temporary)
-        os.replace(temporary, target)
-    except BaseException:
-        temporary.unlink(missing_ok=True)
-        raise
-
-
 def convert_dataset(
     dataset: str,
     source: str | os.PathLike,
@@ -278,9 +258,10 @@ def convert_dataset(
 
     **Raises:** `ValueError` for an unknown `dataset`, a missing or wrong `source`, a
     target that is the source itself, or an `out_dir` that is a file;
-    `FileExistsError` naming the existing files unless `force`. Each file is written to
-    a temporary file in `out_dir` and then renamed, so a file is either complete or not
-    there (an error part-way leaves the files written before it).
+    `FileExistsError` naming the existing files unless `force`. Each file is written
+    by `write_atomically` (a temporary file in `out_dir`, then renamed), so a file is
+    either complete or not there (an error part-way leaves the files written before
+    it).
     """
     if dataset not in _DATASETS:
         raise ValueError(
@@ -292,8 +273,8 @@ def convert_dataset(
     if not source.exists():
         raise ValueError(
             f"convert_dataset({dataset!r}): the source {str(source)!r} does not exist; "
-            f"pass {spec.source} (see the README's Data section for where to download "
-            "it)."
+            f"pass {spec.source} (the dataset's loader in jaxmr.data says where to "
+            "download it)."
         )
     out_dir = Path(out_dir)
     if out_dir.exists() and not out_dir.is_dir():
@@ -327,5 +308,5 @@ def convert_dataset(
         )
     out_dir.mkdir(parents=True, exist_ok=True)
     for file, target in zip(files, written):
-        _write_atomically(file.write, target)
+        write_atomically(target, file.write)
     return written

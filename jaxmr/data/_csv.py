@@ -21,13 +21,18 @@ one sample with one number per column. Columns (names are case-sensitive):
   differences when absent), `F` [N] (optional: needed to fit, not to predict);
 - rotary brake: `theta` [rad], `omega` [rad/s], `T` [N·m], in the same roles;
 - the input, exactly one of `i` [A] (coil current) or `u` [V] (command voltage),
-  constant or time-varying.
+  constant or time-varying;
+- optional, beside a predicted force (`jaxmr predict`, `write_csv`'s `band`): its
+  prediction band, `F_std` (the prediction's standard error), `F_lower` and
+  `F_upper` (the band's edges) [N] (`T_std`, `T_lower`, `T_upper` [N·m] for a
+  brake); `read_csv` reads past them (an `Experiment` has no band).
 
 Comments of the form `# name: ...` and `# velocity: ...` set the experiment's name
 (default: the file stem) and the origin of the `v` column (default: measured).
 
 Two optional comments record how the data were processed and how to score them, both in
-seconds with the unit written out (`read_processing` reads them; `read_csv` ignores them):
+seconds with the unit written out (`read_csv` reads them into the experiment's
+`smoothing` and `discard`; `read_processing` reads them alone):
 
 - `# smoothing: <width> s`: the force (and, for UTFSM, the displacement) went through a
   centred moving average of this width, so a model's force should be smoothed the same
@@ -70,6 +75,10 @@ _UNITS = {
     "i": "A",
     "u": "V",
 }
+# The prediction band's columns (`write_csv`'s `band`): `F_std`, `F_lower`, `F_upper`
+# (`T_*` for a brake), each in the force's unit.
+_BAND = ("std", "lower", "upper")
+_UNITS |= {f"{load}_{part}": _UNITS[load] for load in ("F", "T") for part in _BAND}
 _KNOWN = tuple(_UNITS)
 # Names people write for the canonical columns, for the "did you mean" hint.
 _ALIASES = {
@@ -140,8 +149,9 @@ def _check_header(names: list[str], where: str) -> None:
             f"{where}: unknown column names {', '.join(hints)}. Found {found}; expected "
             f"{_expected()}. Names are case-sensitive and carry no units (SI assumed)."
         )
-    linear = [n for n in names if n in _LINEAR.values()]
-    rotary = [n for n in names if n in _ROTARY.values()]
+    # A band column (`F_std`) belongs to its force's device.
+    linear = [n for n in names if n.partition("_")[0] in _LINEAR.values()]
+    rotary = [n for n in names if n.partition("_")[0] in _ROTARY.values()]
     if linear and rotary:
         raise ValueError(
             f"{where}: linear columns {linear} and rotary columns {rotary} are mixed; "
@@ -227,6 +237,8 @@ def read_csv(path: str | os.PathLike) -> Experiment:
     header_line = 0
     rows: list[list[float]] = []
     lines: list[int] = []
+    processing: dict[str, float | None] = dict.fromkeys(_PROCESSING)
+    at: dict[str, int] = {}
     for number, text in _lines(path):
         text = text.strip()
         if not text:
@@ -242,6 +254,7 @@ def read_csv(path: str | os.PathLike) -> Experiment:
             key, sep, value = text[1:].partition(":")
             if sep and key.strip().lower() in ("name", "velocity"):
                 metadata.setdefault(key.strip().lower(), value.strip())
+            _processing_line(processing, at, path, number, text)
             continue
         cells = [c.strip() for c in text.split(",")]
         if header is None:
@@ -281,6 +294,7 @@ def read_csv(path: str | os.PathLike) -> Experiment:
     current, force = columns[input_name], columns.get(roles["force"])
     name = metadata.get("name") or path.stem
     drive = _INPUTS[input_name]
+    seconds = {k: 0.0 if v is None else v for k, v in processing.items()}
     # Warnings of implausible units name the file (and point at the user's line that
     # read it).
     with named_by_file(path):
@@ -293,6 +307,7 @@ def read_csv(path: str | os.PathLike) -> Experiment:
                 name=name,
                 rotary=rotary,
                 drive=drive,
+                **seconds,
             )
         return Experiment(
             t,
@@ -304,6 +319,7 @@ def read_csv(path: str | os.PathLike) -> Experiment:
             rotary=rotary,
             drive=drive,
             velocity_source=metadata.get("velocity", VELOCITY_MEASURED),
+            **seconds,
         )
 
 
@@ -341,36 +357,41 @@ def read_processing(path: str | os.PathLike) -> dict[str, float | None]:
     found: dict[str, float | None] = dict.fromkeys(_PROCESSING)
     at: dict[str, int] = {}
     for number, text in _lines(path):
-        text = text.strip()
-        if not text.startswith("#"):
-            continue
-        key, sep, value = text[1:].partition(":")
-        key = key.strip().lower()
-        if not sep or key not in _PROCESSING:
-            continue
-        value = value.strip()
-        match = _SECONDS.match(value)
-        seconds = math.nan
-        if match is not None:
-            try:
-                seconds = float(match["number"])
-            except ValueError:
-                pass
-        if not math.isfinite(seconds) or seconds < 0:
-            what = _PROCESSING[key]
-            raise ValueError(
-                f"{path}: line {number}: cannot read {value!r} as the {key} "
-                f"{what}; expected `# {key}: <{what}> s`, a finite number >= 0 in "
-                f"seconds followed by the unit s (e.g. `# {key}: 0.1 s`)."
-            )
-        if key in at and found[key] != seconds:
-            raise ValueError(
-                f"{path}: line {number}: a second `# {key}:` line ({seconds!r} s) "
-                f"contradicts line {at[key]} ({found[key]!r} s); keep one."
-            )
-        found[key] = seconds
-        at.setdefault(key, number)
+        _processing_line(found, at, path, number, text.strip())
     return found
+
+
+def _processing_line(found: dict, at: dict, path, number: int, text: str) -> None:
+    """Read a `# smoothing:` or `# discard:` comment line into `found` (`at`: the line
+    each key was first read from); other lines are left alone."""
+    if not text.startswith("#"):
+        return
+    key, sep, value = text[1:].partition(":")
+    key = key.strip().lower()
+    if not sep or key not in _PROCESSING:
+        return
+    value = value.strip()
+    match = _SECONDS.match(value)
+    seconds = math.nan
+    if match is not None:
+        try:
+            seconds = float(match["number"])
+        except ValueError:
+            pass
+    if not math.isfinite(seconds) or seconds < 0:
+        what = _PROCESSING[key]
+        raise ValueError(
+            f"{path}: line {number}: cannot read {value!r} as the {key} "
+            f"{what}; expected `# {key}: <{what}> s`, a finite number >= 0 in "
+            f"seconds followed by the unit s (e.g. `# {key}: 0.1 s`)."
+        )
+    if key in at and found[key] != seconds:
+        raise ValueError(
+            f"{path}: line {number}: a second `# {key}:` line ({seconds!r} s) "
+            f"contradicts line {at[key]} ({found[key]!r} s); keep one."
+        )
+    found[key] = seconds
+    at.setdefault(key, number)
 
 
 def write_csv(
@@ -380,6 +401,7 @@ def write_csv(
     comment: str | None = None,
     smoothing: float | None = None,
     discard: float | None = None,
+    band=None,
 ) -> None:
     """Write an experiment in jaxmr's canonical CSV format (see the module docstring).
 
@@ -394,12 +416,24 @@ def write_csv(
     - `path`: the file to write (overwritten).
     - `comment`: optional free text, one comment line per text line.
     - `smoothing`: the width [s] of the centred moving average the force went through,
-      written as `# smoothing: <width> s`; None (default) writes no line.
+      written as `# smoothing: <width> s`; None (default): the experiment's own
+      `smoothing`, written when it is not 0.
     - `discard`: the start [s] to leave out of the score, written as
-      `# discard: <duration> s`; None (default) writes no line.
+      `# discard: <duration> s`; None (default): the experiment's own `discard`,
+      written when it is not 0.
+    - `band`: a `jaxmr.PredictionBand` of the experiment, whose `force` is then the
+      prediction: its `std`, `lower` and `upper` are written after the force as the
+      columns `F_std`, `F_lower`, `F_upper` [N] (`T_*` [N·m] for a brake); None
+      (default): no band.
 
-    `read_processing` reads both back.
+    `read_csv` reads both back into the experiment (`read_processing` alone), and
+    reads past a band's columns.
     """
+    own = lambda value: value or None  # an experiment's 0 (none) writes no line
+    if smoothing is None:
+        smoothing = own(experiment.smoothing)
+    if discard is None:
+        discard = own(experiment.discard)
     processing = [_seconds_text("smoothing", smoothing)]
     processing.append(_seconds_text("discard", discard))
     roles = _ROTARY if experiment.rotary else _LINEAR
@@ -409,6 +443,22 @@ def write_csv(
     if experiment.force is not None:
         names.append(roles["force"])
         arrays.append(experiment.force)
+    if band is not None:
+        if experiment.force is None:
+            raise ValueError(
+                "write_csv: a `band` goes with a predicted force: give the experiment "
+                "the band's prediction as its `force`."
+            )
+        for part in _BAND:
+            column = np.asarray(getattr(band, part), dtype=np.float64)
+            if column.shape != np.shape(experiment.t):
+                raise ValueError(
+                    f"write_csv: the band's `{part}` has shape {column.shape}, but "
+                    f"the experiment has {len(experiment)} samples: give the band of "
+                    "this experiment."
+                )
+            names.append(f"{roles['force']}_{part}")
+            arrays.append(column)
     data = np.stack([np.asarray(a, dtype=np.float64) for a in arrays], axis=1)
 
     def one_line(text: str) -> str:

@@ -43,7 +43,51 @@ MAX_CURRENT = 50.0  # A, largest magnitude (not checked for a voltage drive)
 # with rad: 57). Measurement noise and filtering change the ratio by far less.
 MAX_VELOCITY_RATIO = 10.0
 
+# A measured velocity and the displacement disagree at a sample step when the step's
+# displacement differs from the velocity's trapezoid over it by more than this many times
+# the record's large steps (the 95th percentile of |x[k+1] - x[k]|). There the cubic
+# Hermite motion through the samples (`Experiment.motion`), whose slopes are the
+# velocity column, has to cover the displacement step: it moves about 1.5 times the
+# mismatch per sample step, i.e. at least 4 times faster than the column's large
+# velocities, which the step policy did not plan for. Consistent records stay far below:
+# a velocity lagging by half a sample or 10 % off in scale gives at most about 0.1-0.2
+# times the large steps, and the real records (UTFSM, NEES) at most ... (tests).
+MAX_MOTION_MISMATCH = 3.0
+
 _DRIVES = ("current", "voltage")
+
+
+class DataWarning(UserWarning):
+    """A warning about measured data, with what it found as data (attributes), so that
+    a program can act on it (`jaxmr fit` refuses an implausible unit) without reading
+    its text.
+
+    **Attributes:**
+
+    - `kind`: `"unit"` (a column's values are implausible in SI units) or `"motion"`
+      (a measured velocity and the displacement disagree: a step in one that the other
+      does not show).
+    - `column`: the column concerned (`"t"`, `"x"`, `"v"`, `"F"`, `"i"`; `"theta"`,
+      `"omega"`, `"T"` for a brake).
+    - `suggested`: the unit the values look like (e.g. `"mm"` for `x`), or None.
+    - `time`: for `"motion"`, the time [s] of the first sample where the step starts
+      (None otherwise).
+    """
+
+    def __init__(
+        self,
+        message: str,
+        *,
+        kind: str,
+        column: str,
+        suggested: str | None = None,
+        time: float | None = None,
+    ):
+        super().__init__(message)
+        self.kind = kind
+        self.column = column
+        self.suggested = suggested
+        self.time = time
 
 
 def as_column(a: DataLike) -> Float[np.ndarray, "..."] | Float[Array, "..."]:
@@ -101,6 +145,20 @@ def _user_stacklevel(frame) -> int:
             break
         frame, level = frame.f_back, level + 1
     return level
+
+
+def _seconds(name: str, value) -> float:
+    """A processing duration [s]: a finite number >= 0."""
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        number = float("nan")
+    if not (np.isfinite(number) and number >= 0):
+        raise ValueError(
+            f"Experiment: `{name}` must be a finite number of seconds >= 0 (0: none), "
+            f"got {value!r}."
+        )
+    return number
 
 
 def _index_label(k: int) -> str:
@@ -189,10 +247,11 @@ def warn_implausible_units(
     """`UserWarning`s for values that are implausible in SI units (thresholds above)."""
     position, velocity, load = ("theta", "omega", "T") if rotary else ("x", "v", "F")
 
-    def warn(message):
+    def warn(message, column, suggested=None):
         warnings.warn(
-            f"{where}: {message}",
-            UserWarning,
+            DataWarning(
+                f"{where}: {message}", kind="unit", column=column, suggested=suggested
+            ),
             stacklevel=_user_stacklevel(sys._getframe()),
         )
 
@@ -200,7 +259,9 @@ def warn_implausible_units(
     if dt > MAX_TIME_STEP:
         warn(
             f"the median time step is {dt:g} s (> {MAX_TIME_STEP:g} s): is `t` in "
-            "milliseconds? jaxmr expects seconds."
+            "milliseconds? jaxmr expects seconds.",
+            "t",
+            "ms",
         )
     if not rotary:
         amplitude = 0.5 * float(np.max(x) - np.min(x))
@@ -208,7 +269,9 @@ def warn_implausible_units(
             warn(
                 f"the displacement amplitude (half peak-to-peak) is {amplitude:g} m "
                 f"(> {MAX_DISPLACEMENT_AMPLITUDE:g} m): is `x` in millimetres? jaxmr "
-                "expects metres."
+                "expects metres.",
+                "x",
+                "mm",
             )
     if force is not None:
         peak = float(np.max(np.abs(force)))
@@ -216,14 +279,17 @@ def warn_implausible_units(
             unit = "N·m" if rotary else "N"
             warn(
                 f"the largest |{load}| is {peak:g} {unit} (> {MAX_FORCE:g} {unit}): check "
-                f"its unit; jaxmr expects {unit}."
+                f"its unit; jaxmr expects {unit}.",
+                load,
             )
     if drive == "current":
         peak = float(np.max(np.abs(current)))
         if peak > MAX_CURRENT:
             warn(
                 f"the largest |current| is {peak:g} A (> {MAX_CURRENT:g} A): is it in "
-                "milliamperes? jaxmr expects amperes."
+                "milliamperes? jaxmr expects amperes.",
+                "i",
+                "mA",
             )
     if velocity_measured:
         derivative = _rms(np.gradient(x, t))
@@ -234,7 +300,8 @@ def warn_implausible_units(
                 warn(
                     f"the RMS of `{velocity}` is {ratio:g} times that of the derivative "
                     f"of `{position}`: their units disagree (e.g. mm/s with m, or deg/s "
-                    f"with rad); give `{position}` and `{velocity}` in SI units."
+                    f"with rad); give `{position}` and `{velocity}` in SI units.",
+                    velocity,
                 )
 
 
@@ -271,6 +338,17 @@ class Experiment(eqx.Module):
     - `rotary`: a brake (angle, torque) rather than a linear damper.
     - `drive`: `"current"` or `"voltage"`: what `current` holds.
     - `velocity_source`: `"measured"`, or how `v` was computed.
+    - `smoothing`: the width [s] of the centred moving average the measured force
+      went through (0: none). A fit (`jaxmr.fit`, `record_nrmse`, ...) passes the
+      model's force through the same before comparing, unless told otherwise.
+    - `discard`: the start [s] of the record to leave out of every score and
+      residual (0: none), e.g. the first cycle of a sine test, where the hysteretic
+      state is unknown.
+
+    `jaxmr.data.read_csv` reads `smoothing` and `discard` from a file's
+    `# smoothing:` and `# discard:` lines and `write_csv` writes them; the dataset
+    loaders set them where the data's processing is known (`load_utfsm`,
+    `load_nees`).
     """
 
     t: Column = eqx.field(converter=as_column)
@@ -284,6 +362,8 @@ class Experiment(eqx.Module):
     rotary: bool = eqx.field(static=True)
     drive: str = eqx.field(static=True)
     velocity_source: str = eqx.field(static=True)
+    smoothing: float = eqx.field(static=True, default=0.0)
+    discard: float = eqx.field(static=True, default=0.0)
 
     def __init__(
         self,
@@ -297,6 +377,8 @@ class Experiment(eqx.Module):
         rotary: bool = False,
         drive: str = "current",
         velocity_source: str = VELOCITY_MEASURED,
+        smoothing: float = 0.0,
+        discard: float = 0.0,
     ):
         if drive not in _DRIVES:
             raise ValueError(
@@ -322,6 +404,8 @@ class Experiment(eqx.Module):
         self.rotary = bool(rotary)
         self.drive = drive
         self.velocity_source = velocity_source
+        self.smoothing = _seconds("smoothing", smoothing)
+        self.discard = _seconds("discard", discard)
 
     def __check_init__(self):
         arrays = (self.t, self.x, self.v, self.current, self.force)
@@ -369,6 +453,8 @@ class Experiment(eqx.Module):
         name: str = "",
         rotary: bool = False,
         drive: str = "current",
+        smoothing: float = 0.0,
+        discard: float = 0.0,
     ) -> "Experiment":
         r"""An experiment from arrays, computing the velocity when it is not measured.
 
@@ -405,6 +491,8 @@ class Experiment(eqx.Module):
             rotary=rotary,
             drive=drive,
             velocity_source=source,
+            smoothing=smoothing,
+            discard=discard,
         )
 
     def __len__(self) -> int:
@@ -448,13 +536,17 @@ class Experiment(eqx.Module):
     ) -> "Experiment":
         """The samples with `start <= t <= end` [s] (either bound may be `None`), as an
         `Experiment` with the same metadata; time is not shifted. E.g. drop the first
-        cycle of a sine test, whose hysteretic state starts unknown."""
+        cycle of a sine test, whose hysteretic state starts unknown. The `smoothing`
+        is kept; the `discard` still ends at the same time (what of it the window
+        cuts off is no longer discarded)."""
         t = np.asarray(self.t)
         keep = np.ones(t.shape, dtype=bool)
         if start is not None:
             keep &= t >= start
         if end is not None:
             keep &= t <= end
+        kept = t[keep]
+        discard = max(0.0, float(t[0] + self.discard - kept[0])) if kept.size else 0.0
         token = _WARN_UNITS.set(False)
         try:
             return Experiment(
@@ -467,6 +559,8 @@ class Experiment(eqx.Module):
                 rotary=self.rotary,
                 drive=self.drive,
                 velocity_source=self.velocity_source,
+                smoothing=self.smoothing,
+                discard=discard,
             )
         finally:
             _WARN_UNITS.reset(token)

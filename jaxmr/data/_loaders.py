@@ -133,7 +133,10 @@ def load_utfsm(
 
     **Returns:** the experiments, sorted by nominal amplitude, frequency and current;
     each is named by its file stem (`utfsm_test_conditions(experiment)` gives the
-    nominal conditions) and has a constant `current`.
+    nominal conditions) and has a constant `current`, the authors' `smoothing` (a
+    tenth of the nominal period, `utfsm_smoothing`) and a `discard` of one nominal
+    period (`utfsm_first_cycle`: the hysteretic state is unknown there and the moving
+    average starts), which `jaxmr.fit` and the scores use unless told otherwise.
     """
     what = "load_utfsm"
     directory = _existing(directory, what, _UTFSM_SOURCE)
@@ -160,11 +163,20 @@ def load_utfsm(
             )
         t, x, v, force = data.T
         x, v = x * MM, v * MM
-        current = utfsm_test_conditions(path.stem).current
+        conditions = utfsm_test_conditions(path.stem)
+        current = conditions.current
+        period = 1.0 / conditions.frequency  # `utfsm_first_cycle`
+        smoothing = UTFSM_SMOOTHING * period
         with named_by_file(path):  # unit warnings name the file
             if velocity == "central":
                 experiment = Experiment.from_arrays(
-                    t, x, current=current, force=force, name=path.stem
+                    t,
+                    x,
+                    current=current,
+                    force=force,
+                    name=path.stem,
+                    smoothing=smoothing,
+                    discard=period,
                 )
             else:
                 experiment = Experiment(
@@ -175,6 +187,8 @@ def load_utfsm(
                     force,
                     name=path.stem,
                     velocity_source=_UTFSM_VELOCITY_FILE,
+                    smoothing=smoothing,
+                    discard=period,
                 )
         experiments.append(experiment)
     return experiments
@@ -199,6 +213,11 @@ _NEES_VELOCITY_FILE = (
 # the file's smoother column); the last moving block ends at 21.3 s.
 _NEES_BLOCK = 0.1  # s
 _NEES_MOVING = 0.05  # fraction of the largest block RMS
+
+
+# The start of the NEES record left out of scores [s]: it starts during the motion,
+# its hysteretic state unknown.
+NEES_DISCARD = 0.2
 
 
 def _nees_end_of_motion(v: np.ndarray, fs: float) -> int:
@@ -250,7 +269,8 @@ def load_nees(
       the displacement by central differences.
 
     **Returns:** an `Experiment` with `drive="voltage"` (`current` holds the command
-    voltage [V]), named after the file stem.
+    voltage [V]), named after the file stem, with a `discard` of `NEES_DISCARD`
+    (0.2 s: the record starts during the motion, its hysteretic state unknown).
     """
     what = "load_nees"
     path = _existing(path, what, _NEES_SOURCE)
@@ -315,6 +335,7 @@ def load_nees(
             name=path.stem,
             drive="voltage",
             velocity_source=source,
+            discard=NEES_DISCARD,
         )
 
 
@@ -454,6 +475,10 @@ def load_boucwen_benchmark_input(path: str | os.PathLike) -> BoucWenBenchmarkInp
     return BoucWenBenchmarkInput(np.arange(u.size) / BOUCWEN_BENCHMARK_FS, u, kind)
 
 
+# The UTFSM authors' moving average, as a fraction of the nominal period.
+UTFSM_SMOOTHING = 0.1
+
+
 def utfsm_first_cycle(experiments) -> np.ndarray:
     """One nominal period [s] per UTFSM test (the start to discard from the error: the
     hysteretic state is unknown there and the authors' moving average starts)."""
@@ -465,4 +490,4 @@ def utfsm_smoothing(experiments) -> np.ndarray:
     nominal period. Both the displacement and the force went through it, so a model's
     force is compared like with like after the same smoothing (`jaxmr.record_nrmse`'s and
     `jaxmr.fit`'s `smoothing`); it spreads each force reversal over 36° of phase."""
-    return 0.1 * utfsm_first_cycle(experiments)
+    return UTFSM_SMOOTHING * utfsm_first_cycle(experiments)

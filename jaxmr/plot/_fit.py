@@ -1,5 +1,7 @@
 """Measured against predicted force: how well a fitted model reproduces an experiment."""
 
+from types import SimpleNamespace
+
 import numpy as np
 
 from ._loops import _UNITS, _pyplot
@@ -83,10 +85,19 @@ def measured_vs_predicted(
 
 
 def measured_vs_predicted_loops(
-    experiment, predicted_force, *, units: str | None = None, title: str | None = None
+    experiment,
+    predicted_force,
+    *,
+    units: str | None = None,
+    title: str | None = None,
+    band=None,
 ):
     """Three panels of `measured_vs_predicted`: force against displacement, velocity
     and time.
+
+    **Arguments:** as `measured_vs_predicted`'s, and `title` (the figure's), `band`:
+    a `jaxmr.PredictionBand` of the same samples, shaded in each panel as
+    `prediction_band` shades it (`None`: no band).
 
     **Returns:** the matplotlib Figure.
     """
@@ -99,8 +110,80 @@ def measured_vs_predicted_loops(
             against,
             ax=ax,
             units=units,
-            legend=against == "time",
+            legend=False,
         )
+        if band is not None:
+            _shade(ax, band, experiment, against, units, None)
+        if against == "time":
+            ax.legend(fontsize="small")
     if title:
         fig.suptitle(title)
     return fig
+
+
+def prediction_band(
+    band,
+    experiment=None,
+    against: str = "time",
+    *,
+    ax=None,
+    units: str | None = None,
+    band_kwargs: dict | None = None,
+    legend: bool = True,
+):
+    """Draw a prediction band (`jaxmr.prediction_band`): the predicted force and the
+    shaded band around it, with the measured force where `experiment` has one.
+
+    **Arguments:**
+
+    - `band`: a `jaxmr.PredictionBand`.
+    - `experiment`: the experiment it predicts (needed to draw against displacement
+      or velocity, and to draw the measured force); `None`: the band against time.
+    - `against`, `ax`, `units`, `legend`: as `measured_vs_predicted`.
+    - `band_kwargs`: extra `Axes.fill_between` arguments of the band.
+
+    **Returns:** the Axes.
+    """
+    if experiment is None:
+        if against != "time":
+            raise ValueError(
+                "drawing a band against displacement or velocity needs its "
+                "`experiment` (for the motion); give it, or use against='time'."
+            )
+        experiment = SimpleNamespace(t=band.t, force=None)
+    ax = measured_vs_predicted(
+        experiment, band.force, against, ax=ax, units=units, legend=False
+    )
+    _shade(ax, band, experiment, against, units, band_kwargs)
+    if legend:
+        ax.legend(fontsize="small")
+    return ax
+
+
+def _shade(ax, band, experiment, against: str, units, band_kwargs) -> None:
+    """Shade `band` on `ax` against time, displacement or velocity."""
+    t = np.asarray(experiment.t)
+    if np.shape(band.lower) != t.shape:
+        raise ValueError(
+            f"the band has {np.size(band.lower)} samples, but the experiment has "
+            f"{t.shape[0]}: give the band of the same samples."
+        )
+    if against == "time":
+        abscissa = t
+    else:
+        units = _default_units(experiment, units)
+        scale = _UNITS[units][3]
+        key = "x" if against == "displacement" else "v"
+        abscissa = np.asarray(getattr(experiment, key)) * scale
+    # Against the motion the abscissa turns back at each reversal: shade between
+    # the edges as a polygon, not as a function of the abscissa.
+    style = {"color": "C3", "alpha": 0.25, "lw": 0, "label": f"{band.level:.0%} band"}
+    style |= band_kwargs or {}
+    if against == "time":
+        ax.fill_between(abscissa, band.lower, band.upper, **style)
+    else:
+        ax.fill(
+            np.concatenate([abscissa, abscissa[::-1]]),
+            np.concatenate([band.lower, band.upper[::-1]]),
+            **style,
+        )

@@ -1,11 +1,10 @@
 """`jaxmr design`: plan the tests that identify a model best (`jaxmr.design_experiments`)
 and write them ready to drive a rig.
 
-Its own module (registered by `jaxmr._cli._parser`), with the command line's rules: a
-`CLIError` for what the user can fix, every file through a temporary file and a
-rename. Unlike the other commands it never replaces a file, not even on request: a plan
-is a record of what was decided, so an existing output is an error and nothing is
-written.
+The command line's rules hold (a `CLIError` for what the user can fix, never over an
+input, every file whole or not at all), but unlike the other commands it never replaces
+a file, not even on request: a plan is a record of what was decided, so an existing
+output is an error and nothing is written.
 """
 
 import argparse
@@ -18,15 +17,16 @@ from pathlib import Path
 import numpy as np
 
 import jaxmr
-from jaxmr._cli import (
-    CLIError,
-    _load_model,
-    _prepare_directory,
-    _processing,
-    _read_experiments,
-    _same_file,
-    _write_atomically,
-    _write_text,
+
+from .errors import CLIError
+from .files import (
+    load_model,
+    prepare_directory,
+    read_experiments,
+    refuse_inputs,
+    with_processing,
+    write_atomically,
+    write_text,
 )
 
 PLAN = "plan.csv"
@@ -34,7 +34,7 @@ PLAN_COLUMNS = ("test", "file", "amplitude", "frequency", "current", "duration")
 
 
 def add_parser(subparsers) -> None:
-    """Register `jaxmr design` on the command line's subparsers."""
+    """Register `jaxmr design`."""
     command = subparsers.add_parser(
         "design",
         help="choose the tests that identify a model best; write them as CSV files",
@@ -147,7 +147,8 @@ def _free_model(model, data: dict, path: str):
     `Fixed`."""
     import jax
 
-    from jaxmr._parameter import is_parameter
+    def is_parameter(x) -> bool:
+        return isinstance(x, jaxmr.AbstractParameter)
 
     if any(is_parameter(x) for x in jax.tree.leaves(model, is_leaf=is_parameter)):
         return model
@@ -183,19 +184,16 @@ def _file_name(name: str, taken: set) -> str:
 
 
 def _menu(args):
-    """The candidates, their names for the output files, and their discard and
-    smoothing [s]."""
+    """The candidates, each with its discard and smoothing [s] (`Experiment.discard`,
+    `.smoothing`), and their names for the output files."""
     grid = (args.amplitudes, args.frequencies, args.currents)
     if args.candidates and any(g is not None for g in grid):
         raise CLIError("give either --candidates or a sine grid, not both")
     if args.candidates:
-        tests = _read_experiments(args.candidates, need_force=False, why="")
-        discard = _processing(args.discard, args.candidates, "discard", "--discard")
-        smoothing = _processing(
-            args.smoothing, args.candidates, "smoothing", "--smoothing"
+        tests = _processed(
+            read_experiments(args.candidates, need_force=False, why=""), args
         )
-        names = [Path(p).stem for p in args.candidates]
-        return tests, names, discard, smoothing
+        return tests, [Path(p).stem for p in args.candidates]
     if any(g is None for g in grid):
         raise CLIError(
             "no menu: give --candidates FILE..., or --amplitudes, --frequencies and "
@@ -217,65 +215,48 @@ def _menu(args):
         rotary=args.rotary,
         drive="voltage" if args.voltage else "current",
     )
+    # A sine test's default ('file'): one period discarded, no smoothing.
     periods = [
         1.0 / f
         for _ in args.amplitudes
         for f in args.frequencies
         for _ in args.currents
     ]
-    discard = _option(args.discard, periods, "--discard")
-    smoothing = _option(args.smoothing, [0.0] * len(tests), "--smoothing")
-    return tests, [t.name for t in tests], discard, smoothing
+    tests = [dataclasses.replace(t, discard=p) for t, p in zip(tests, periods)]
+    return _processed(tests, args), [t.name for t in tests]
 
 
-def _option(option: str, default: list, flag: str) -> list:
-    if option == "file":
-        return list(default)
-    try:
-        value = float(option)
-    except ValueError:
-        raise CLIError(f"{flag}: expected a number of seconds or 'file'") from None
-    if not (math.isfinite(value) and value >= 0):
-        raise CLIError(f"{flag}: must be a finite number >= 0 [s], got {option!r}")
-    return [value] * len(default)
+def _processed(tests, args) -> list:
+    """The tests with the smoothing and discard of --smoothing and --discard."""
+    tests = with_processing(tests, args.discard, "discard", "--discard")
+    return with_processing(tests, args.smoothing, "smoothing", "--smoothing")
 
 
 def run(args: argparse.Namespace) -> int:
     """Run `jaxmr design` (see `add_parser`)."""
     import jaxmr.data
 
-    model, data = _load_model(args.model)
+    model, data = load_model(args.model)
     model = _free_model(model, data, args.model)
-    tests, stems, discard, smoothing = _menu(args)
+    tests, stems = _menu(args)
     if not 1 <= args.k <= len(tests):
         raise CLIError(f"-k must be from 1 to the number of candidates ({len(tests)})")
-    already = _read_experiments(args.already, need_force=False, why="")
+    already = _processed(read_experiments(args.already, need_force=False, why=""), args)
     kinds = {(t.rotary, t.drive) for t in list(tests) + already}
     if len(kinds) > 1:
         raise CLIError(
             "the candidates and --already mix linear and rotary devices or current "
             "and voltage inputs; give tests of one device"
         )
-    already_discard = _processing(args.discard, args.already, "discard", "--discard")
-    already_smoothing = _processing(
-        args.smoothing, args.already, "smoothing", "--smoothing"
-    )
 
     # Every output path is known before the design runs: check them first.
     out = Path(args.out)
     taken: set = set()
     files = [_file_name(stem, taken) for stem in stems]
     inputs = [args.model] + list(args.candidates or []) + list(args.already)
-    targets = [out / PLAN] + [out / f for f in files]
-    for target in targets:
-        for source in inputs:
-            if _same_file(target, source):
-                raise CLIError(
-                    f"{str(target)!r} would write over the input file {str(source)!r}: "
-                    "choose another --out"
-                )
+    refuse_inputs([out / PLAN] + [out / f for f in files], inputs)
     _refuse_existing([out / PLAN])
-    _prepare_directory(out)
+    prepare_directory(out)
 
     try:
         design = jaxmr.design_experiments(
@@ -286,9 +267,7 @@ def run(args: argparse.Namespace) -> int:
             criterion=args.criterion,
             already=already,
             weighting=args.weighting,
-            noise=args.noise,
-            discard=list(discard) + list(already_discard),
-            smoothing=list(smoothing) + list(already_smoothing),
+            noise=args.noise,  # each test with its own discard and smoothing
         )
     except (ValueError, TypeError) as e:
         raise CLIError(str(e)) from e
@@ -297,20 +276,15 @@ def run(args: argparse.Namespace) -> int:
     chosen = [out / files[k] for k in design.indices]
     _refuse_existing([out / PLAN] + chosen)
     rows = design.plan_table()
-    _write_text(out / PLAN, lambda f: _write_plan(f, design, rows, chosen))
+    write_text(out / PLAN, lambda f: _write_plan(f, design, rows, chosen))
     for k, path in zip(design.indices, chosen):
         # The motion and input only: a measured candidate's force is not the plan's.
+        # Its discard and smoothing are written (when not 0) for the fit to come.
         planned = dataclasses.replace(tests[k], force=None)
-        _write_atomically(
+        write_atomically(
             path,
-            lambda target, e=planned, d=discard[k], w=smoothing[k]: (
-                jaxmr.data.write_csv(
-                    e,
-                    target,
-                    comment="planned by jaxmr design",
-                    discard=d or None,
-                    smoothing=w or None,
-                )
+            lambda target, e=planned: jaxmr.data.write_csv(
+                e, target, comment="planned by jaxmr design"
             ),
         )
     print(f"{len(chosen)} test(s) and {PLAN} in {out}")

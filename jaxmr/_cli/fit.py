@@ -1,0 +1,607 @@
+"""`jaxmr fit`: fit a damper model (or select one, `--model auto`) to measured CSV
+files and write it with a report.
+
+`run` reads the files (`_read`), fits (`_fit_model`: one template, `_fit_one`, or a
+selection among candidates, `_select`), then reports and writes the model
+(`_fit_report`, `_save_model`). While it fits, `_FitLog` prints its progress (the
+steps, and `select_model`'s events) and `_Interrupts` turns a Ctrl-C into the `stop`
+event of `fit` and `select_model`: stop at the next step with the best model so far.
+"""
+
+import argparse
+import math
+import os
+import signal
+import sys
+import tempfile
+import threading
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+
+import jaxmr
+
+from .errors import INTERRUPTED, CLIError
+from .files import (
+    FORCE_HELP,
+    check_writable_file,
+    file_digest,
+    plan_outputs,
+    read_experiments,
+    units,
+    with_processing,
+    write_atomically,
+)
+
+AUTO = "auto"
+# The candidates of `--model auto`: the richest structures first (their screening fits
+# decide), each behind a fitted input lag when the input varies within a file.
+AUTO_CANDIDATES = ("shear_thinning_spencer", "spencer", "bouc_wen")
+# How `jaxmr fit --channel-delay` names a model seen through a fitted channel delay.
+DELAY_SUFFIX = " + channel delay"
+# The names of `jaxmr.templates.MODEL_TEMPLATES`, for the help (that module imports
+# JAX; tests/test_cli.py checks that the lists agree).
+TEMPLATE_NAMES = (
+    "bingham",
+    "bouc_wen",
+    "normalized_bouc_wen",
+    "dahl",
+    "lugre",
+    "spencer",
+    "shear_thinning_spencer",
+    "bouc_wen_lag",
+    "spencer_lag",
+    "shear_thinning_spencer_lag",
+)
+
+
+def add_parser(subparsers) -> None:
+    """Register `jaxmr fit`."""
+    names = ", ".join(TEMPLATE_NAMES)
+    command = subparsers.add_parser(
+        "fit",
+        help="fit a damper model to measured CSV files; write its parameters (JSON)",
+        description=(
+            "Fit a model to experiments in jaxmr's canonical CSV format (columns t, x "
+            "or theta, optionally v or omega, i or u, and the measured F or T) by "
+            "Levenberg-Marquardt, from an initial guess scaled from the data. "
+            f"Models: {names}, or auto (fit every model on part of the data, select the "
+            "one with the lowest held-out error, refit it on all the files). Writes "
+            "the fitted model with a report (parameters, standard errors, NRMSE per "
+            "file, why the fit stopped, unidentified parameters)."
+        ),
+    )
+    command.add_argument(
+        "--model",
+        default=AUTO,
+        metavar="NAME",
+        help=f"{names}, or {AUTO} (default)",
+    )
+    command.add_argument(
+        "--out",
+        required=True,
+        metavar="PARAMS.json",
+        help="the parameter file to write (never one of the input files)",
+    )
+    command.add_argument("--force", action="store_true", help=FORCE_HELP)
+    command.add_argument(
+        "--candidates",
+        metavar="NAMES",
+        default=None,
+        help=(
+            "with --model auto: the comma-separated models to choose from (default: "
+            + ", ".join(AUTO_CANDIDATES)
+            + "; their _lag variants when the input varies within a file)"
+        ),
+    )
+    command.add_argument(
+        "--holdout",
+        action="append",
+        default=None,
+        metavar="FILE",
+        help=(
+            "with --model auto: a file (one of FILE) held out to score the candidates "
+            "on; repeat for several (default: every other interior current level, or "
+            "the last third of each file when there are fewer than 3 files)"
+        ),
+    )
+    command.add_argument(
+        "--finalists",
+        type=int,
+        default=2,
+        metavar="N",
+        help="with --model auto: how many screened candidates get a full fit (default 2)",
+    )
+    command.add_argument(
+        "--smoothing",
+        default="file",
+        metavar="SECONDS",
+        help=(
+            "the width [s] of the moving average the measured force went through, "
+            "applied to the model's force too; 'file' (default): each file's "
+            "'# smoothing:' line, else 0"
+        ),
+    )
+    command.add_argument(
+        "--discard",
+        default="file",
+        metavar="SECONDS",
+        help=(
+            "the start [s] of each file left out of the error (the model still runs "
+            "through it); 'file' (default): each file's '# discard:' line, else 0"
+        ),
+    )
+    command.add_argument(
+        "--channel-delay",
+        action="store_true",
+        help=(
+            "fit a delay of the force channel against the motion channels too (each "
+            "model seen through jaxmr.ChannelDelay, |delay| up to 10 ms or 5 sample "
+            "intervals): for rigs whose force and motion are sampled or filtered apart"
+        ),
+    )
+    command.add_argument(
+        "--max-steps",
+        type=int,
+        default=200,
+        metavar="N",
+        help="largest number of Levenberg-Marquardt steps per fit (default 200)",
+    )
+    command.add_argument(
+        "--starts",
+        type=int,
+        default=1,
+        metavar="N",
+        help="starts per fit: the data-scaled guess plus N-1 random ones (default 1)",
+    )
+    command.add_argument("files", nargs="+", metavar="FILE", help="CSV experiments")
+    command.set_defaults(run=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run `jaxmr fit` (see `add_parser`)."""
+    _check_options(args)
+    out = Path(args.out)
+    replacing = plan_outputs([out], args.files + (args.holdout or []), force=args.force)
+    check_writable_file(out)
+    experiments = _read(args)
+    log = _FitLog(single=args.model != AUTO, terminal=sys.stdout.isatty())
+    with _Interrupts() as interrupts:
+        options = {"max_steps": args.max_steps}
+        if args.starts > 1:
+            options["starts"] = args.starts
+        # The steps' progress (`log.step`, counted by `interrupts`), and the event
+        # that a Ctrl-C sets to stop the fit with its best model so far.
+        options["progress"] = interrupts.progress(log.step)
+        options["stop"] = interrupts.stop
+        start = time.perf_counter()
+        try:
+            name, result, selection = _fit_model(args, experiments, options, log)
+        except KeyboardInterrupt:
+            print(
+                "\njaxmr fit: interrupted before any model was fitted; nothing written",
+                file=sys.stderr,
+            )
+            return INTERRUPTED
+        # From here on a Ctrl-C is deferred: the model is reported and written first.
+        interrupts.finishing = True
+        elapsed = time.perf_counter() - start
+        warnings = list(getattr(args, "warnings", []))
+        report = _fit_report(
+            name, args.files, experiments, result, elapsed, selection, warnings
+        )
+        _print_summary(name, result, elapsed)
+        if _save_model(result.model, out, report, replacing=out in replacing):
+            interrupts.count += 1
+        return _exit_status(result, interrupts, out)
+
+
+def _check_options(args: argparse.Namespace) -> None:
+    if args.model != AUTO and args.model not in TEMPLATE_NAMES:
+        raise CLIError(
+            f"unknown model {args.model!r}; choose one of "
+            f"{', '.join(TEMPLATE_NAMES)}, or {AUTO}"
+        )
+    if args.max_steps < 1 or args.starts < 1 or args.finalists < 1:
+        raise CLIError("--max-steps, --starts and --finalists must be at least 1")
+
+
+def _read(args: argparse.Namespace) -> list:
+    """Read the files, with their smoothing and discarded start as the options say
+    (`Experiment.smoothing`, `.discard`), and say what was read."""
+    experiments = read_experiments(args.files, need_force=True, why="fitting")
+    experiments = with_processing(
+        experiments, args.smoothing, "smoothing", "--smoothing"
+    )
+    experiments = with_processing(experiments, args.discard, "discard", "--discard")
+    _, input_unit = units(experiments[0])
+    print(f"read {len(experiments)} file(s):", flush=True)
+    for path, e in zip(args.files, experiments):
+        i = np.asarray(e.current)
+        level = f"{i[0]:g}" if e.is_constant_current else f"{i.min():g}..{i.max():g}"
+        extra = "".join(
+            [
+                f", smoothed over {e.smoothing:g} s" if e.smoothing else "",
+                f", first {e.discard:g} s discarded" if e.discard else "",
+            ]
+        )
+        print(
+            f"  {path}: {len(e)} samples, {e.duration:g} s, {level} {input_unit}{extra}",
+            flush=True,
+        )
+    return experiments
+
+
+def _fit_model(args, experiments: list, options: dict, log: "_FitLog"):
+    """Fit the model of `--model`, or select one (`auto`).
+
+    **Returns:** its name, its `FitResult`, and the `Selection` (None for one model).
+    """
+    if args.model == AUTO:
+        selection = _select(args, experiments, options, log)
+        return selection.name, selection.result, selection
+    name, result = _fit_one(args, experiments, options)
+    return name, result, None
+
+
+def _fit_one(args, experiments: list, options: dict):
+    """Fit the template `--model` (through a channel delay with `--channel-delay`)."""
+    import jaxmr.templates
+
+    name = args.model
+    template = jaxmr.templates.MODEL_TEMPLATES[name]
+    if args.channel_delay:
+        template = jaxmr.templates.with_channel_delay(template)
+        name = f"{name}{DELAY_SUFFIX}"
+    try:
+        model = template(experiments)
+    except ValueError as e:
+        raise CLIError(str(e)) from e
+    print(f"fitting {name}...", flush=True)
+    try:
+        # Each experiment's own smoothing and discard (`Experiment`'s).
+        result = jaxmr.fit(model, experiments, **options)
+    except ValueError as e:  # data `fit` refuses, e.g. a constant force
+        raise CLIError(str(e)) from e
+    return name, result
+
+
+def _candidates(args, experiments) -> list[str] | dict:
+    """The candidates of `auto`: the names of `--candidates` (default
+    `AUTO_CANDIDATES`, their `_lag` variants when the input varies within a file), or
+    with `--channel-delay` their templates behind a channel delay, by name."""
+    import jaxmr.templates
+
+    if args.candidates is None:
+        lag = jaxmr.templates.input_varies_in_time(experiments)
+        names = [f"{c}_lag" if lag else c for c in AUTO_CANDIDATES]
+    else:
+        names = [c.strip() for c in args.candidates.split(",") if c.strip()]
+        unknown = [c for c in names if c not in TEMPLATE_NAMES]
+        if unknown or not names:
+            raise CLIError(
+                f"--candidates: unknown model(s) {', '.join(map(repr, unknown))}; "
+                f"choose from {', '.join(TEMPLATE_NAMES)}"
+                if unknown
+                else "--candidates names no model"
+            )
+    if not args.channel_delay:
+        return names
+    return {
+        f"{c}{DELAY_SUFFIX}": jaxmr.templates.with_channel_delay(
+            jaxmr.templates.MODEL_TEMPLATES[c]
+        )
+        for c in names
+    }
+
+
+def _held_out(args, experiments: list) -> tuple:
+    """The experiments as `select_model` takes them: `(train, test)` with
+    `--holdout`, else `(all,)` (it holds out a part itself)."""
+    if not args.holdout:
+        return (experiments,)
+    held = {os.path.abspath(p) for p in args.holdout}
+    unknown = held - {os.path.abspath(p) for p in args.files}
+    if unknown:
+        raise CLIError(
+            "--holdout: not among the input files: " + ", ".join(sorted(unknown))
+        )
+    keep = [os.path.abspath(p) not in held for p in args.files]
+    if all(keep) or not any(keep):
+        raise CLIError("--holdout must leave at least one file to fit on")
+    train = [e for e, k in zip(experiments, keep) if k]
+    test = [e for e, k in zip(experiments, keep) if not k]
+    return train, test
+
+
+def _select(args, experiments: list, options: dict, log: "_FitLog"):
+    """`--model auto`: `jaxmr.select_model` among the candidates; prints the
+    ranking."""
+    import jaxmr.scores
+
+    candidates = _candidates(args, experiments)
+    data = _held_out(args, experiments)
+    print(f"selecting among {', '.join(candidates)} by held-out NRMSE...", flush=True)
+    try:
+        selection = jaxmr.select_model(
+            candidates,
+            *data,  # each experiment with its own smoothing and discard
+            finalists=args.finalists,
+            callback=log.event,
+            log=log.line,
+            **options,
+        )
+    except (RuntimeError, ValueError) as e:  # every candidate failed, or bad data
+        raise CLIError(str(e)) from e
+    print(f"({selection.holdout})")
+    print(jaxmr.scores.score_table(selection.scores))
+    if selection.kept == "template":
+        print(
+            f"kept {selection.name}'s fit from its own start: a lower loss than its "
+            "refit from the training fit"
+        )
+    return selection
+
+
+def _print_summary(name: str, result, elapsed: float) -> None:
+    """`FitResult`'s own summary (its verdict in the words of `FitResult.outcome`,
+    which the report records too)."""
+    print(f"\n{name}: {elapsed:.1f} s")
+    print(result)
+
+
+def _exit_status(result, interrupts: "_Interrupts", out: Path) -> int:
+    """0, or `INTERRUPTED` (saying so) when a Ctrl-C stopped the fit or came while
+    the model was finished."""
+    if result.interrupted:
+        print(
+            f"jaxmr fit: interrupted; the best model so far is in {out}",
+            file=sys.stderr,
+        )
+        return INTERRUPTED
+    if interrupts.count:
+        print(
+            f"jaxmr fit: interrupted while finishing; the fitted model is in {out}",
+            file=sys.stderr,
+        )
+        return INTERRUPTED
+    return 0
+
+
+# ---------------------------------------------------------------------------------------
+# While it fits: Ctrl-C and progress
+
+
+def _in_jax(frame) -> bool:
+    """Whether the stack from `frame` down holds JAX's own code (by its modules'
+    names: XLA's compiler polls for Ctrl-C from there)."""
+    while frame is not None:
+        name = frame.f_globals.get("__name__", "")
+        if name in ("jax", "jaxlib") or name.startswith(("jax.", "jaxlib.")):
+            return True
+        frame = frame.f_back
+    return False
+
+
+class _Interrupts:
+    """Ctrl-C (SIGINT) while `jaxmr fit` runs, as a context manager.
+
+    The first Ctrl-C sets `stop`, the event that `fit` and `select_model` check after
+    every Levenberg–Marquardt step: the fit under way stops there with its best model
+    so far, and no other starts. Before the first step it raises `KeyboardInterrupt`
+    at once instead (nothing to lose), unless JAX is running (an exception raised
+    through XLA's compiler crashed the process later). Every later Ctrl-C, and any
+    while the command is `finishing` (reporting and writing the model), is only
+    counted and acknowledged: it cannot lose the model. `count` is how many came.
+    Python allows signal handlers in the main thread only; elsewhere nothing changes.
+    """
+
+    def __init__(self):
+        self.count = 0
+        self.steps = 0
+        self.finishing = False
+        self.stop = threading.Event()
+        self._installed = False
+        self._previous = None
+
+    def __enter__(self):
+        if threading.current_thread() is threading.main_thread():
+            self._previous = signal.signal(signal.SIGINT, self._handle)
+            self._installed = True
+        return self
+
+    def __exit__(self, *exc_info):
+        if self._installed:
+            previous = signal.SIG_DFL if self._previous is None else self._previous
+            signal.signal(signal.SIGINT, previous)
+        return False
+
+    def _handle(self, signum, frame):
+        self.count += 1
+        if self.count > 1 or self.finishing:
+            _say("Ctrl-C again: ignored while the model is finished and written")
+        elif not self.steps and not _in_jax(frame):
+            raise KeyboardInterrupt
+        else:
+            self.stop.set()
+            _say(
+                "Ctrl-C: stopping at the fit's next step (after JAX's current "
+                "computation or compilation); the best model so far will be written"
+            )
+
+    def progress(self, report: Callable[[int, float], None]):
+        """A fit's `progress(step, loss)`: counts the steps, then `report`."""
+
+        def call(step, loss):
+            self.steps += 1
+            report(step, loss)
+
+        return call
+
+
+def _say(line: str) -> None:
+    print(f"\njaxmr fit: {line}", file=sys.stderr, flush=True)
+
+
+# A line of progress every this many Levenberg–Marquardt steps when the output is not a
+# terminal (a log file, a pipe): on a terminal a single fit prints every 2 s and
+# `auto` only its candidates' lines, which left a log file silent for minutes.
+PROGRESS_STEPS = 10
+
+
+class _FitLog:
+    """What `jaxmr fit` prints while it fits.
+
+    `step` is the fits' `progress(step, loss)` (a `jaxmr.ProgressPrinter`, its label
+    the fit under way); `event` is the `callback` of `select_model` (`--model auto`),
+    which labels the step lines with the fit that starts; `line` is its `log`, which
+    prints `select_model`'s own lines (one per start and end of each fit).
+    """
+
+    def __init__(self, *, single: bool, terminal: bool):
+        if not terminal:
+            seconds, steps = None, PROGRESS_STEPS
+        else:  # `auto` on a terminal: its candidates' lines only
+            seconds, steps = (2.0 if single else None), None
+        self.step = jaxmr.ProgressPrinter(
+            "fit", seconds=seconds, steps=steps, indent="    "
+        )
+
+    def event(self, event) -> None:
+        if isinstance(event, jaxmr.FitStarted):
+            self.step.label = f"{event.name} ({event.stage})"
+
+    @staticmethod
+    def line(text: str) -> None:
+        print(f"  {text}", flush=True)
+
+
+# ---------------------------------------------------------------------------------------
+# What it reports and writes
+
+
+def _save_model(model, out: Path, report: dict, *, replacing: bool) -> bool:
+    """Write the parameter file atomically (`_write_atomically`). A write stopped by a
+    `KeyboardInterrupt` (a Ctrl-C that came past `_Interrupts`) is made again. If the
+    file cannot be written, the model goes to a new file in the temporary directory,
+    which the error names.
+
+    **Returns:** whether a `KeyboardInterrupt` came during the write.
+    """
+
+    def write(path):
+        jaxmr.save_model(model, path, report=report)
+
+    interrupted = False
+    for _ in range(3):
+        try:
+            write_atomically(out, write, replacing=replacing)
+            return interrupted
+        except KeyboardInterrupt:
+            interrupted = True
+            print(
+                "\njaxmr fit: Ctrl-C while writing the model; writing it again",
+                file=sys.stderr,
+                flush=True,
+            )
+        except CLIError as e:
+            raise CLIError(f"{e}{_rescue(write)}") from e
+    raise CLIError(f"interrupted 3 times while writing {str(out)!r}{_rescue(write)}")
+
+
+def _rescue(write) -> str:
+    """Save the model (`write(path)`) to a new file in the temporary directory; the
+    end of the error message that says where (or that it could not)."""
+    try:
+        descriptor, name = tempfile.mkstemp(prefix="jaxmr-fit-", suffix=".json")
+    except OSError as e:
+        return f"; the model could not be saved elsewhere either ({e.strerror or e})"
+    os.close(descriptor)
+    try:
+        write(Path(name))
+    except (OSError, KeyboardInterrupt) as e:
+        Path(name).unlink(missing_ok=True)
+        return f"; the model could not be saved elsewhere either ({e})"
+    return f"; the model was saved to {name} instead"
+
+
+def _fit_report(name, files, experiments, result, elapsed, selection, warnings) -> dict:
+    """The report saved with the model (`jaxmr report` reads it)."""
+    force_unit, input_unit = units(experiments[0])
+    report = {
+        "template": name,
+        "device": "rotary" if experiments[0].rotary else "linear",
+        "force_unit": force_unit,
+        "input": f"{experiments[0].drive} [{input_unit}]",
+        "files": [str(f) for f in files],
+        "parameters": [
+            {"name": n, "value": _json_number(v), "std_error": _json_number(se)}
+            for n, v, se in zip(result.names, result.values, result.std_errors)
+        ],
+        # The parameters' covariance (in the product of their units; null where not
+        # finite): `jaxmr predict` and `jaxmr report` draw the prediction band from it.
+        "covariance": {
+            "names": list(result.names),
+            "matrix": [[_json_number(c) for c in row] for row in result.covariance],
+        },
+        "per_file": [
+            {
+                "file": str(f),
+                "sha256": file_digest(f),
+                "experiment": str(n),
+                "rmse": _json_number(r),  # in `force_unit`
+                "nrmse": _json_number(e),
+            }
+            for f, n, r, e in zip(
+                files, result.experiment_names, result.rmse, result.nrmse
+            )
+        ],
+        "reason": result.reason,
+        "stop": result.stop.name.lower(),
+        "outcome": result.outcome,
+        "converged": bool(result.converged),
+        "num_steps": int(result.num_steps),
+        "loss": _json_number(result.loss),
+        "unidentified": list(result.unidentified),
+        "poorly_determined": list(result.poorly_determined),
+        "interrupted": bool(result.interrupted),
+        "fit_time_s": round(elapsed, 3),
+    }
+    if selection is not None:
+        report["selection"] = {
+            "holdout": selection.holdout,
+            # Which fit on every file was kept (`Selection.kept`), and their times.
+            "kept": selection.kept,
+            "refit_time_s": _json_seconds(selection.refit_time),
+            "template_time_s": _json_seconds(selection.template_time),
+            "ranking": [
+                {
+                    "template": s.name,
+                    "num_parameters": s.num_parameters,
+                    "fit_time_s": round(s.fit_time, 3),
+                    "screening_time_s": _json_seconds(s.screening_time),
+                    "full_time_s": _json_seconds(s.full_time),
+                    "outcome": s.outcome,
+                    "median_train_nrmse": _json_number(s.median_train_nrmse),
+                    "median_test_nrmse": _json_number(s.median_test_nrmse),
+                    "stage": s.stage,
+                    "error": s.error,
+                }
+                for s in selection.scores
+            ],
+        }
+    report["smoothing_s"] = [e.smoothing for e in experiments]
+    report["discard_s"] = [e.discard for e in experiments]
+    report["warnings"] = warnings
+    return report
+
+
+def _json_number(x):
+    x = float(x)
+    return x if math.isfinite(x) else None
+
+
+def _json_seconds(x):
+    return None if x is None else round(x, 3)

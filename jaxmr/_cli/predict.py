@@ -1,0 +1,152 @@
+"""`jaxmr predict`: the force of a fitted model under a CSV experiment's motion and
+input, written as a canonical CSV."""
+
+import argparse
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+import jaxmr
+
+from .errors import CLIError
+from .files import (
+    BAND_LEVEL_HELP,
+    FORCE_HELP,
+    band_level,
+    check_writable_file,
+    load_model,
+    plan_outputs,
+    prediction_bands,
+    read_experiments,
+    units,
+    with_processing,
+    write_atomically,
+)
+
+if TYPE_CHECKING:
+    import jaxmr.data  # at run time `jaxmr.data` is imported on first use (it imports JAX)
+
+
+def add_parser(subparsers) -> None:
+    """Register `jaxmr predict`."""
+    command = subparsers.add_parser(
+        "predict",
+        help="predict the force of a fitted model for a CSV experiment",
+        description=(
+            "Simulate the model of a parameter file (from `jaxmr fit`) under the motion "
+            "and input of a CSV experiment and write the predicted force (or torque) "
+            "in jaxmr's canonical CSV format: t, x, v, i (or theta, omega, u) as read, "
+            "and F (T) predicted, followed by its prediction band from the fitted "
+            "parameters' uncertainty: F_std (the prediction's standard error), "
+            "F_lower and F_upper (the band's edges), in N (T_std, T_lower, T_upper "
+            "in N·m for a brake); no band for a parameter file without the fit's "
+            "covariance. A measured force in FILE is only used to print the error."
+        ),
+    )
+    command.add_argument("params", metavar="PARAMS.json", help="the fitted model")
+    command.add_argument("file", metavar="FILE", help="the CSV experiment")
+    command.add_argument(
+        "--out",
+        required=True,
+        metavar="PRED.csv",
+        help="the CSV file to write (never FILE itself)",
+    )
+    command.add_argument("--force", action="store_true", help=FORCE_HELP)
+    command.add_argument(
+        "--band-level",
+        type=band_level,
+        default=0.95,
+        metavar="P",
+        help=BAND_LEVEL_HELP,
+    )
+    command.add_argument(
+        "--smoothing",
+        default="file",
+        metavar="SECONDS",
+        help=(
+            "a moving average [s] applied to the prediction, as the measured force "
+            "went through; 'file' (default): FILE's '# smoothing:' line, else 0"
+        ),
+    )
+    command.add_argument(
+        "--discard",
+        default="file",
+        metavar="SECONDS",
+        help="the start [s] left out of the printed error ('file': FILE's line, else 0)",
+    )
+    command.set_defaults(run=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run `jaxmr predict` (see `add_parser`)."""
+    out = Path(args.out)
+    replacing = plan_outputs([out], [args.file, args.params], force=args.force)
+    check_writable_file(out)
+    model, data = load_model(args.params)
+    read = read_experiments([args.file], need_force=False, why="")
+    read = with_processing(read, args.smoothing, "smoothing", "--smoothing")
+    (experiment,) = with_processing(read, args.discard, "discard", "--discard")
+    # Through the experiment's own smoothing (`Experiment.smoothing`).
+    (predicted,) = jaxmr.predict_all(model, [experiment])
+    if not np.all(np.isfinite(predicted)):
+        raise CLIError(
+            f"the simulation of {args.file} diverged (non-finite force): the model's "
+            "parameters do not suit this input"
+        )
+    result = jaxmr.data.Experiment(
+        experiment.t,
+        experiment.x,
+        experiment.v,
+        experiment.current,
+        predicted,
+        name=experiment.name,
+        rotary=experiment.rotary,
+        drive=experiment.drive,
+        velocity_source=experiment.velocity_source,
+    )
+    load = "T" if experiment.rotary else "F"
+    comment = (
+        f"{load}: predicted by jaxmr {jaxmr.__version__} with the "
+        f"{type(model).__name__} model of {args.params}, from the motion and input of "
+        f"{args.file}"
+    )
+    # The band's centre is the same simulation as `predicted` (`predict_all`'s).
+    bands, _ = prediction_bands(model, data, [experiment], args.params, args.band_level)
+    band = None if bands is None else bands[0]
+    if band is not None:
+        comment += (
+            f"\n{load}_std, {load}_lower, {load}_upper: the prediction band of "
+            f"nominal coverage {band.level:g}, {load} ∓ z·{load}_std (z the normal "
+            "quantile), from the fitted parameters' covariance to first order: where "
+            f"the model's {'torque' if experiment.rotary else 'force'} lies, not the "
+            "measurement"
+        )
+    if experiment.force is not None:
+        print(_prediction_error(args.file, experiment, predicted), flush=True)
+    write_atomically(
+        out,
+        lambda path: jaxmr.data.write_csv(result, path, comment=comment, band=band),
+        replacing=out in replacing,
+    )
+    return 0
+
+
+def _prediction_error(path, experiment, predicted) -> str:
+    """The line that `predict` prints: RMSE and NRMSE against the measured force after
+    the discarded start (`experiment.discard`); the NRMSE (RMSE/std) is undefined for
+    a constant force."""
+    from jaxmr.scores import nrmse, rmse  # imports JAX: not at `jaxmr --help`
+
+    t, discard = np.asarray(experiment.t), experiment.discard
+    keep = t >= t[0] + discard
+    if not np.any(keep):
+        return f"{path}: no error: --discard {discard:g} s leaves no sample"
+    force_unit, _ = units(experiment)
+    error = f"{path}: RMSE {rmse(predicted, experiment.force, keep):.6g} {force_unit}"
+    if not np.std(np.asarray(experiment.force)[keep]) > 0:
+        return (
+            f"{error}; NRMSE undefined: the measured force is constant (its standard "
+            "deviation, the NRMSE's denominator, is 0)"
+        )
+    return f"{error}, NRMSE {nrmse(predicted, experiment.force, keep):.4f}"

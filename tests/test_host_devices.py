@@ -1,0 +1,106 @@
+"""`fit` with several starts and `fit_each` on two host devices of one process (as
+`jaxmr fit` makes every core a device) finish, with the one-device results.
+
+Both used to hang with the CPU idle: jaxlib splits a batched LAPACK factorisation
+(the LM step's QR, batched over starts or problems) over XLA's CPU thread pool and
+blocks the pool thread it runs on, and with every pool thread running a device's
+program none was left to do the pieces (`solver._one_matrix_at_a_time`). The data
+are sized so that jaxlib splits the batched QR (2e5 flop per matrix or more: 12 000
+residuals and 3 parameters; 2 starts, or 2 of the 4 problems on each device): with
+the QR batched, the subprocess below hangs at its first step."""
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+
+HERE = Path(__file__).parent
+
+# Seconds the two-device subprocess may take: it compiles two fits (~15 s on 2
+# loaded cores); a hang is stopped here and fails the test.
+TIMEOUT = 120
+
+
+def _runs(samples: int, rhos, k_ws):
+    """Dahl brake runs, 1 Hz ±20°, `samples` samples over one period, 1 % noise."""
+    import jax.numpy as jnp
+
+    import jaxmr
+
+    ts = jnp.linspace(0.0, 1.0, samples)
+    motion = jaxmr.Sine(jnp.deg2rad(20.0), 1.0)
+    rng = np.random.default_rng(1)
+    runs = []
+    for rho, k_w in zip(rhos, k_ws):
+        sol = jaxmr.simulate(jaxmr.Dahl(k_x=0.01, k_w=k_w, rho=rho), motion, 0.0, ts)
+        force = np.asarray(sol.force)
+        runs.append(
+            SimpleNamespace(  # as tests/helpers.py's `dahl_runs`
+                t=np.asarray(ts),
+                x=np.asarray(sol.displacement),
+                v=np.asarray(sol.velocity),
+                current=np.zeros(ts.shape),
+                force=force + 0.01 * np.std(force) * rng.standard_normal(force.shape),
+                name=f"rho={rho}",
+            )
+        )
+    return runs
+
+
+def fits() -> dict:
+    """{name: array}: a joint fit with 2 starts (its 2 lanes one per device) and
+    `fit_each` of 4 problems (2 per device)."""
+    import jaxmr
+
+    P = jaxmr.Positive
+    guess = jaxmr.Dahl(k_x=P(0.02), k_w=P(2.0), rho=P(8.0))
+    options = dict(progress=False, statistics_refinement=1, max_steps=5)
+    joint = jaxmr.fit(
+        guess,
+        _runs(6000, (3.0, 5.0), (1.0, 2.0)),
+        starts=2,
+        lanes=2,
+        **options,
+    )
+    each = jaxmr.fit_each(
+        guess, _runs(12000, (3.0, 5.0, 8.0, 12.0), (1.0, 2.0, 3.0, 4.0)), **options
+    )
+    return {
+        "joint": np.asarray(joint.values),
+        "joint_loss": np.array(joint.loss),
+        "each": np.stack([np.asarray(r.values) for r in each]),
+    }
+
+
+def test_starts_and_fit_each_on_two_host_devices_finish_with_one_device_s_results(
+    tmp_path,
+):
+    out = tmp_path / "two.npz"
+    env = dict(os.environ, PYTHONPATH=str(HERE.parent))
+    # The session's flags (conftest: configure_cpu) and 2 CPU devices.
+    env["XLA_FLAGS"] = (
+        env.get("XLA_FLAGS", "") + " --xla_force_host_platform_device_count=2"
+    )
+    code = (
+        "import jax, numpy as np\n"
+        "jax.config.update('jax_enable_x64', True)\n"
+        "assert len(jax.devices()) == 2\n"
+        "from tests.test_host_devices import fits\n"
+        f"np.savez({str(out)!r}, **fits())\n"
+    )
+    done = subprocess.run(
+        [sys.executable, "-c", code],
+        env=env,
+        timeout=TIMEOUT,
+        capture_output=True,
+        text=True,
+    )
+    assert done.returncode == 0, done.stderr[-3000:]
+    two, one = dict(np.load(out)), fits()
+    for name in one:
+        # Exactly: each lane and each problem is computed by the same program in
+        # either layout, and the QR one matrix at a time as it was batched.
+        np.testing.assert_array_equal(two[name], one[name], err_msg=name)
