@@ -165,10 +165,12 @@ def main():
     import numpy as np
 
     with tempfile.TemporaryDirectory() as folder:
-        # One process on one XLA device (XLA's CPU client still spreads large batched
-        # operations over the cores: the run kept ~1.5 of 2 busy). Its cores as
-        # several devices (`--host-devices`) hung in the 256-record fit on this
-        # machine (2026-11-24; 8 records ran): see benchmarks/README.md.
+        # One process on one XLA device by default (XLA's CPU client still spreads
+        # large batched operations over the cores: the run kept ~1.5 of 2 busy). Its
+        # cores as several devices (`--host-devices`) used to hang in the 256-record
+        # fit: jaxlib split each batched LAPACK QR over the thread pool the devices
+        # themselves run on. The solver now factorises one matrix at a time
+        # (`solver._one_matrix_at_a_time`, 2026-11-25), so `--host-devices` runs.
         one = run(1, args.records, Path(folder), host_devices=args.host_devices)
         figures = {
             "records": args.records,

@@ -59,24 +59,22 @@ import numpy as np  # noqa: E402
 # as they are at start-up: a run takes an hour, and the files may change meanwhile.
 from jaxmr import fit, record_nrmse  # noqa: E402
 from jaxmr._identify.select import (  # noqa: E402
+    MIN_FINALISTS,
     SCREEN_STEPS,
     holdout_split,
     screening_end,
     select_model,
 )
 from jaxmr._identify.templates import (  # noqa: E402
+    DEFAULT_CANDIDATES as AUTO_CANDIDATES,
     MODEL_TEMPLATES,
+    default_candidates,
     input_varies_in_time,
 )
 
-try:  # the command line's defaults, wherever the command line's module now is
-    from jaxmr._cli.fit import AUTO_CANDIDATES
-except ImportError:  # pragma: no cover - while the command line is being split
-    AUTO_CANDIDATES = ("shear_thinning_spencer", "spencer", "bouc_wen")
-
 # `jaxmr fit`'s defaults (jaxmr/_cli.py: --max-steps, --finalists, --starts).
 MAX_STEPS = 200
-FINALISTS = 2
+FINALISTS = MIN_FINALISTS  # the library's (and `jaxmr fit`'s) default
 # The library's families, simplest first (the order of the parsimony rule); the
 # `_lag` variants join where the input varies within a record.
 FAMILIES = ("bingham", "dahl", "lugre", "bouc_wen", "spencer", "shear_thinning_spencer")
@@ -92,9 +90,8 @@ def family_list(experiments) -> list[str]:
 
 
 def auto_candidates(experiments) -> list[str]:
-    """`jaxmr fit`'s default candidates for these records (`_candidate_names`)."""
-    lag = input_varies_in_time(experiments)
-    return [f"{c}_lag" if lag else c for c in AUTO_CANDIDATES]
+    """`jaxmr fit`'s default candidates for these records (the library's)."""
+    return default_candidates(experiments)
 
 
 def _scores(model, records, discard, smoothing) -> list[float]:

@@ -63,6 +63,10 @@ if TYPE_CHECKING:
         TableLaw as TableLaw,
     )
     from ._damper import Damper as Damper
+    from ._fitted_range import (
+        FittedRange as FittedRange,
+        OutsideFittedRange as OutsideFittedRange,
+    )
     from ._hysteresis import (
         AbstractHysteresis as AbstractHysteresis,
         Bingham as Bingham,
@@ -162,6 +166,7 @@ if TYPE_CHECKING:
         road_psd as road_psd,
     )
     from ._serialize import (
+        load_fitted_range as load_fitted_range,
         load_model as load_model,
         model_from_dict as model_from_dict,
         model_to_dict as model_to_dict,

@@ -31,6 +31,7 @@ from . import (
     _signal,
     _systems,
 )
+from ._fitted_range import FittedRange
 from ._misc import default_float
 from ._version import __version__
 
@@ -193,22 +194,30 @@ def model_from_dict(data: dict, classes: dict[str, type] | None = None) -> eqx.M
     return model
 
 
-def save_model(model: eqx.Module, path, **extra) -> None:
+def save_model(
+    model: eqx.Module, path, *, fitted_range: FittedRange | None = None, **extra
+) -> None:
     """Write `model` to a JSON file (with its type), plus any JSON-able `extra`
-    entries (e.g. the fit report)."""
+    entries (e.g. the fit report).
+
+    `fitted_range`: the displacements [m], velocities [m/s] and inputs [A or V] the
+    model was fitted on (`FittedRange.from_experiments`), written as the file's
+    `fitted_range` entry; `load_fitted_range` reads it back, and `simulate`, `sweep`
+    and `simulate_system` given it warn beyond it.
+    """
     data = model_to_dict(model)
     data.update(extra)
+    if fitted_range is not None:
+        if not isinstance(fitted_range, FittedRange):
+            raise TypeError(
+                "`fitted_range` must be a jaxmr.FittedRange, got "
+                f"{type(fitted_range).__name__}."
+            )
+        data["fitted_range"] = fitted_range.to_dict()
     Path(path).write_text(json.dumps(data, indent=2))
 
 
-def load_model(path, classes: dict[str, type] | None = None) -> eqx.Module:
-    """Read a model written by `save_model`.
-
-    Loading runs the checks construction runs: a missing, misspelled or extra field,
-    a string or boolean where a number belongs, or a value the class refuses (an
-    unsorted `TableLaw`) raises `ValueError` naming the file and the field (e.g.
-    `model.hysteresis.alpha.currents`).
-    """
+def _read_json(path) -> dict:
     try:
         data = json.loads(Path(path).read_text())
     except json.JSONDecodeError as e:
@@ -220,6 +229,32 @@ def load_model(path, classes: dict[str, type] | None = None) -> eqx.Module:
             f"{path}: not a jaxmr model file: expected a JSON object with a 'type' "
             f"field (as `save_model` writes), got {type(data).__name__}."
         )
+    return data
+
+
+def load_fitted_range(path) -> FittedRange | None:
+    """The `FittedRange` saved with a model (`save_model(..., fitted_range=)`, as
+    `jaxmr fit` writes it), or None when the file has none. Pass it to `simulate`,
+    `sweep` or `simulate_system` (`fitted_range=`) to be warned
+    (`OutsideFittedRange`) when they drive the model beyond it."""
+    data = _read_json(path)
+    if data.get("fitted_range") is None:
+        return None
+    try:
+        return FittedRange.from_dict(data["fitted_range"])
+    except ValueError as e:
+        raise ValueError(f"{path}: {e}") from e
+
+
+def load_model(path, classes: dict[str, type] | None = None) -> eqx.Module:
+    """Read a model written by `save_model`.
+
+    Loading runs the checks construction runs: a missing, misspelled or extra field,
+    a string or boolean where a number belongs, or a value the class refuses (an
+    unsorted `TableLaw`) raises `ValueError` naming the file and the field (e.g.
+    `model.hysteresis.alpha.currents`).
+    """
+    data = _read_json(path)
     try:
         return model_from_dict(data, classes)
     except ValueError as e:

@@ -15,6 +15,7 @@ from ._current_law import ranged_laws
 from ._custom_types import ArrayLike, Float, ScalarLike
 from ._damper import Damper, as_damper
 from ._distribute import batch_mesh, gather, pad, padded_size, spread
+from ._fitted_range import FittedRange, check_fitted_range
 from ._hysteresis import AbstractHysteresis
 from ._integrate import AbstractIntegrator, Adaptive, FixedStep
 from ._misc import as_float_array, is_concrete, warn_if_float32
@@ -339,6 +340,7 @@ def simulate(
     integrator: AbstractIntegrator | None = None,
     initial_state: Float[ArrayLike, " states"] | None = None,
     throw: bool = True,
+    fitted_range: FittedRange | None = None,
 ) -> Solution:
     r"""Simulate a damper (or brake) under a prescribed motion and current.
 
@@ -362,6 +364,11 @@ def simulate(
     - `throw`: raise if the solve fails (default); with `False` inspect
       `solution.result` instead (a current outside a `TableLaw`'s range is then the
       code `RESULTS.current_outside_table`; other invalid inputs still raise).
+    - `fitted_range`: the range the model was fitted on (`jaxmr.FittedRange`, e.g.
+      `jaxmr.load_fitted_range("params.json")`); when the motion's displacement or
+      velocity, or the current, at `ts` leaves it, warn once (`OutsideFittedRange`),
+      before the solve, naming each interval exceeded and by how much. Skipped when
+      the inputs are traced (under jit, vmap or grad).
 
     **Returns:** a `Solution` (force [N] or torque [N·m], states, inputs, result).
     """
@@ -382,6 +389,15 @@ def simulate(
                 f"`initial_state` must have shape ({expected},) for states "
                 f"{damper.state_names}, got {initial_state.shape}."
             )
+    fitted_range = check_fitted_range(fitted_range)
+    if fitted_range is not None and is_concrete(motion, current, ts):
+        # Before the solve: a run that fails far outside the range is told why first.
+        fitted_range.warn(
+            "jaxmr.simulate",
+            jax.vmap(motion)(ts),
+            jax.vmap(motion.derivative)(ts),
+            jax.vmap(current)(ts),
+        )
     return _simulate(damper, motion, current, ts, integrator, initial_state, throw)
 
 
@@ -606,6 +622,7 @@ def sweep(
     batch_size: int | None = None,  # None: one run at a time, see _auto_batching
     throw: bool = True,
     keep: str | Sequence[str] | None = None,
+    fitted_range: FittedRange | None = None,
 ) -> Solution:
     r"""Simulate many runs in one call: over currents, motions and parameter sets.
 
@@ -641,6 +658,8 @@ def sweep(
       are `None` (`result` and `num_steps` are always kept). Default: all. A large sweep
       spends much of its time writing its outputs: on 1024 brake runs of 10 s, keeping
       only the torque ran 2.3x faster (benchmarks/simulate_sweep.py).
+    - `fitted_range`: as in `simulate`, checked after the runs over every run's
+      displacement, velocity and current that `keep` kept: one warning for the sweep.
 
     **Returns:** a `Solution` whose arrays have the sweep's leading axes; with
     `throw=False` each run has its own `result` (a current outside a `TableLaw`'s range
@@ -648,6 +667,7 @@ def sweep(
     """
     warn_if_float32("jaxmr.sweep", needs=_FLOAT64_NEEDED)
     keep = Solution.check_fields(keep)
+    fitted_range = check_fitted_range(fitted_range)
     damper_in = device
     if isinstance(device, (list, tuple)):
         damper_in = [as_damper(d) for d in device]
@@ -731,7 +751,15 @@ def sweep(
         d, m, c, tuple(axes), ts, integrator, batching, batch_size, shape, throw,
         shared, keep,
     )  # fmt: skip
-    return gather(solution)
+    solution = gather(solution)
+    if fitted_range is not None:
+        fitted_range.warn(
+            "jaxmr.sweep",
+            solution.displacement,
+            solution.velocity,
+            solution.current,
+        )
+    return solution
 
 
 def _shares_states(damper, currents, batched, grid, dtype) -> bool:

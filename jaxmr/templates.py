@@ -22,18 +22,24 @@ Importing this module imports JAX.
 """
 
 from ._identify.templates import (
+    DEFAULT_CANDIDATES as DEFAULT_CANDIDATES,
+    DEFAULT_LAG_CANDIDATES as DEFAULT_LAG_CANDIDATES,
     MODEL_TEMPLATES as MODEL_TEMPLATES,
     DataScales as DataScales,
     data_scales as data_scales,
+    default_candidates as default_candidates,
     input_varies_in_time as input_varies_in_time,
     with_channel_delay as with_channel_delay,
     with_lag as with_lag,
 )
 
 __all__ = [
+    "DEFAULT_CANDIDATES",
+    "DEFAULT_LAG_CANDIDATES",
     "MODEL_TEMPLATES",
     "DataScales",
     "data_scales",
+    "default_candidates",
     "input_varies_in_time",
     "with_channel_delay",
     "with_lag",

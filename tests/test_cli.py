@@ -18,25 +18,30 @@ import jaxmr.data
 import jaxmr.plot
 import jaxmr.templates
 from jaxmr._cli import main
-from jaxmr._cli.demo import DEMO_AMPLITUDE_DEG, DEMO_CURRENTS
+from jaxmr._cli.demo import DEMO_CURRENTS, DEVICES, demo_files
 
-FIGURES = (
-    "torque_angle.png",
-    "torque_velocity.png",
-    "torque_time.png",
-    "energy_vs_current.png",
-)
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+
+
+def _run_demo(out, *options):
+    stdout = io.StringIO()
+    with contextlib.redirect_stdout(stdout):
+        status = main(["demo", "--out", out, *options])  # a Path is accepted in argv
+    return status, out, stdout.getvalue()
 
 
 @pytest.fixture(scope="module")
 def demo(tmp_path_factory):
-    """One run of `jaxmr demo` shared by the tests below (it is the slow part)."""
-    out = tmp_path_factory.mktemp("demo") / "out"  # a directory the demo must create
-    stdout = io.StringIO()
-    with contextlib.redirect_stdout(stdout):
-        status = main(["demo", "--out", out])  # a Path is accepted in argv
-    return status, out, stdout.getvalue()
+    """One run of `jaxmr demo` (the linear damper) shared by the tests below (it is
+    the slow part)."""
+    # A directory the demo must create.
+    return _run_demo(tmp_path_factory.mktemp("demo") / "out")
+
+
+@pytest.fixture(scope="module")
+def brake_demo(tmp_path_factory):
+    """One run of `jaxmr demo --device brake`."""
+    return _run_demo(tmp_path_factory.mktemp("demo") / "out", "--device", "brake")
 
 
 def _summary(out):
@@ -45,12 +50,16 @@ def _summary(out):
     return {key: np.array([float(r[key]) for r in rows]) for key in rows[0]}
 
 
-def test_demo_writes_files(demo):
-    status, out, stdout = demo
+@pytest.mark.parametrize("device", ["damper", "brake"])
+def test_demo_writes_files(device, demo, brake_demo):
+    status, out, stdout = demo if device == "damper" else brake_demo
     assert status == 0
-    for name in FIGURES + ("summary.csv", "summary.md"):
+    figures, files = demo_files(device)
+    assert len(figures) == 3
+    for name in files:
         assert (out / name).is_file(), name
         assert f"wrote {out / name}" in stdout
+    assert sorted(p.name for p in out.iterdir()) == sorted(files)
     assert stdout.startswith(f"simulating {len(DEMO_CURRENTS)} currents")
 
 
@@ -58,7 +67,8 @@ def test_demo_figures_are_png(demo):
     import matplotlib.image
 
     _, out, _ = demo
-    for name in FIGURES:
+    figures, _ = demo_files("damper")
+    for name in [name for name, _ in figures] + ["energy_vs_current.png"]:
         data = (out / name).read_bytes()
         assert data.startswith(PNG_SIGNATURE), name
         image = matplotlib.image.imread(out / name)
@@ -66,33 +76,59 @@ def test_demo_figures_are_png(demo):
         assert np.ptp(image) > 0, f"{name} is blank"
 
 
-def test_demo_table(demo):
+def test_demo_table_shows_the_field_effect(demo):
+    """The default demo is the linear damper: its force and energy per cycle grow
+    several-fold from 0 to 1 A."""
     _, out, stdout = demo
     table = _summary(out)
-    assert list(table) == ["current_A", "peak_torque_Nm", "energy_J"]
+    assert list(table) == ["current_A", "peak_force_N", "energy_J"]
     np.testing.assert_allclose(table["current_A"], DEMO_CURRENTS)
-    peak, energy = table["peak_torque_Nm"], table["energy_J"]
+    peak, energy = table["peak_force_N"], table["energy_J"]
     assert peak.shape == (5,) and np.all(np.diff(peak) > 0)
     assert np.all(energy >= 0) and np.all(np.diff(energy) > 0)
-    # The loop fits in the box of ±peak torque × ±amplitude: its area is at most that.
-    box = 4 * peak * np.deg2rad(DEMO_AMPLITUDE_DEG)
-    assert np.all(energy <= box)
-    # At 0 A the torque saturates at α_a z0 = 1 N·m × (843/738)^(1/0.9), plus a
-    # viscous C0a·θ̇ of under 1e-3 N·m.
-    z0 = (843.0 / 738.0) ** (1 / 0.9)
-    np.testing.assert_allclose(peak[0], z0, atol=1e-3)
+    assert peak[-1] > 5 * peak[0] and energy[-1] > 5 * energy[0]
+    device = DEVICES["damper"]
+    # The loop fits in the box of ±peak force × ±amplitude: its area is at most that.
+    assert np.all(energy <= 4 * peak * device.amplitude)
+    # At the middle of the stroke the velocity peaks at X ω and z has saturated at
+    # z0 = A/(β + γ): the force is α z0 + c0 X ω (the preset's laws), within 1 % (the
+    # peak of the last cycle is a little past mid-stroke, where z still grows).
+    law = jaxmr.passenger_car_mr_damper().hysteresis
+    assert isinstance(law, jaxmr.BoucWen)
+    velocity = device.amplitude * 2 * np.pi * device.frequency
+    for current, measured in zip(DEMO_CURRENTS, peak):
+        at = law.at(current)
+        assert isinstance(at, jaxmr.BoucWen)
+        z0 = float(at.A) / (float(at.beta) + float(at.gamma))
+        expected = float(at.alpha) * z0 + float(at.c0) * velocity
+        np.testing.assert_allclose(measured, expected, rtol=0.01)
 
     markdown = (out / "summary.md").read_text(encoding="utf-8").splitlines()
     assert len(markdown) == 2 + 5 and markdown[0].startswith("| current [A]")
     for line in markdown:
         assert line in stdout  # the table is printed too
+    assert f"×{energy[-1] / energy[0]:.3g}" in stdout
+
+
+def test_the_brake_demo_table(brake_demo):
+    _, out, stdout = brake_demo
+    table = _summary(out)
+    assert list(table) == ["current_A", "peak_torque_Nm", "energy_J"]
+    peak, energy = table["peak_torque_Nm"], table["energy_J"]
+    assert np.all(np.diff(peak) > 0) and np.all(np.diff(energy) > 0)
+    # The loop fits in the box of ±peak torque × ±amplitude: its area is at most that.
+    assert np.all(energy <= 4 * peak * DEVICES["brake"].amplitude)
+    # At 0 A the torque saturates at α_a z0 = 1 N·m × (843/738)^(1/0.9), plus a
+    # viscous C0a·θ̇ of under 1e-3 N·m.
+    z0 = (843.0 / 738.0) ** (1 / 0.9)
+    np.testing.assert_allclose(peak[0], z0, atol=1e-3)
 
 
 def test_demo_does_not_replace_its_files_without_force(demo, capsys):
     """A second `jaxmr demo` into the same directory stops before simulating: its
     files are there already, and only --force replaces them."""
     _, out, _ = demo
-    names = FIGURES + ("summary.csv", "summary.md")
+    _, names = demo_files("damper")
     before = {name: (out / name).read_bytes() for name in names}
     assert main(["demo", "--out", out]) == 1
     captured = capsys.readouterr()
@@ -122,10 +158,11 @@ def test_version_and_usage(capsys):
     assert exit_info.value.code == 2
 
 
-def test_demo_says_why_the_loops_grow_so_little(demo, capsys):
-    """The printed growth of the energy per cycle from 0 to 1 A is the table's, and
-    the help gives the same round figure and its cause (the published law)."""
-    _, out, stdout = demo
+def test_the_brake_demo_says_why_its_loops_grow_so_little(brake_demo, capsys):
+    """The printed growth of the brake's energy per cycle from 0 to 1 A is the
+    table's, and the help gives the same round figure and its cause (the published
+    law)."""
+    _, out, stdout = brake_demo
     energy = _summary(out)["energy_J"]
     growth = energy[-1] / energy[0] - 1
     assert f"{growth:+.1%}" in stdout
@@ -135,6 +172,7 @@ def test_demo_says_why_the_loops_grow_so_little(demo, capsys):
     help_text = " ".join(capsys.readouterr().out.split())
     assert f"about {100 * growth:.0f} % from 0 to 1 A" in help_text
     assert "published law" in help_text and "alpha = 1 + 0.07 i" in help_text
+    assert "--device brake" in help_text
 
 
 # ---------------------------------------------------------------------------------------

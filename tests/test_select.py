@@ -11,7 +11,14 @@ import pytest
 import jaxmr
 import jaxmr.data
 from jaxmr import FitEnded, FitStarted, predict, predict_all
-from jaxmr._identify.select import compare_models, holdout_split, score_table
+from jaxmr._identify.select import (
+    compare_models,
+    cv_folds,
+    fold_data,
+    holdout_split,
+    parsimony,
+    score_table,
+)
 from jaxmr._identify.templates import MODEL_TEMPLATES, data_scales
 from jaxmr._parameter import unwrap
 
@@ -260,6 +267,15 @@ def test_select_model_reports_typed_events_in_order():
     )
     kinds = [(type(e).__name__, e.name, e.stage) for e in events]
     best = selection.name
+    # "far" screens within 1.5x of "dahl" (both reach the noise floor): both are
+    # finalists despite `finalists=1`, fitted on the first fold (one held-out record)
+    # and then on the second (a time fold: the last third of every record).
+    both = [
+        (kind, name, stage)
+        for stage in ("full", "cv")
+        for name in ("dahl", "far")
+        for kind in ("FitStarted", "FitEnded")
+    ]
     assert kinds == [
         ("FitStarted", "dahl", "screening"),
         ("FitEnded", "dahl", "screening"),
@@ -267,8 +283,7 @@ def test_select_model_reports_typed_events_in_order():
         ("FitEnded", "far", "screening"),
         ("FitStarted", "refused", "screening"),
         ("FitEnded", "refused", "screening"),
-        ("FitStarted", best, "full"),
-        ("FitEnded", best, "full"),
+        *both,
         ("FitStarted", best, "refit"),
         ("FitEnded", best, "refit"),
         ("FitStarted", best, "template"),
@@ -279,9 +294,21 @@ def test_select_model_reports_typed_events_in_order():
         2,
         2,
         2,
+        2,
+        3,
+        3,
         3,
         3,
     ]
+    # Both are Dahl models: "dahl" (a known family) is the simpler by the order, and
+    # it is chosen when within one standard error of the best.
+    rule = selection.parsimony
+    assert rule is not None and rule.chosen == best
+    assert best == "dahl" or rule.best == best
+    assert rule.num_records == 1 + 3  # one held-out record, then three ends
+    assert len(selection.folds) == 2 and selection.holdout.startswith(
+        "held out 1 of 3 (every third experiment): rho=5.0; held out the last 33%"
+    )
     ended = {(e.name, e.stage): e for e in events if isinstance(e, FitEnded)}
     failure = ended["refused", "screening"]
     assert failure.error == "ValueError: this template cannot scale to the data"
@@ -299,7 +326,17 @@ def test_select_model_reports_typed_events_in_order():
     finalist = scores[best]
     assert finalist.stage == "full"
     assert finalist.full_time == ended[best, "full"].seconds
-    assert finalist.fit_time == finalist.screening_time + finalist.full_time
+    assert finalist.cv_time == ended[best, "cv"].seconds
+    assert finalist.fit_time == pytest.approx(
+        finalist.screening_time + finalist.full_time + finalist.cv_time, rel=1e-12
+    )
+    # The held-out errors pooled over the folds, the first fold's first.
+    assert finalist.test_names == (
+        "rho=5.0",
+        *(f"rho={r} [fold 2]" for r in (4.0, 5.0, 6.0)),
+    )
+    assert finalist.test_nrmse[0] == ended[best, "full"].test_nrmse
+    assert finalist.mean_test_nrmse == pytest.approx(np.mean(finalist.test_nrmse))
     assert selection.refit_time == ended[best, "refit"].seconds
     assert selection.template_time == ended[best, "template"].seconds
     # The selection is the lower loss of the two fits on every experiment.
@@ -317,7 +354,6 @@ def test_select_model_reports_typed_events_in_order():
         if e.error is None:
             assert e.outcome.startswith("converged") == e.converged, e
     assert ended[best, "full"].stop is finalist.result.stop
-    assert ended[best, "full"].test_nrmse == finalist.median_test_nrmse
     outcome = score_table(selection.scores).splitlines()[1]
     assert outcome.endswith(finalist.outcome), outcome
     assert finalist.outcome.startswith("converged") == finalist.result.converged
@@ -334,22 +370,28 @@ def test_select_model_reports_typed_events_in_order():
         "refused: screened fit on 2 experiment(s)...",
         f"refused: failed after {failure.seconds:.1f} s: {failure.error}",
     ]
-    assert lines[6] == f"{best}: full fit on 2 experiment(s), from its screening fit..."
+    dahl = scores["dahl"]
+    assert lines[6] == "dahl: full fit on 2 experiment(s), from its screening fit..."
     assert lines[7].startswith(
-        f"{best}: {finalist.full_time:.1f} s ({finalist.fit_time:.1f} s with its "
-        "screening), "
+        f"dahl: {dahl.full_time:.1f} s "
+        f"({dahl.screening_time + dahl.full_time:.1f} s with its screening), "
     )
-    assert lines[7].endswith(f"(full); {ended[best, 'full'].outcome}")
+    assert lines[7].endswith(f"(full); {ended['dahl', 'full'].outcome}")
+    assert lines[10] == (
+        "dahl: fit on another fold's 3 training experiment(s), from its own start..."
+    )
+    assert lines[11].endswith(f"(other fold); {ended['dahl', 'cv'].outcome}")
+    assert lines[14] == f"parsimony: {rule.reason}"
     assert (
-        lines[8]
+        lines[15]
         == f"selected {best}; refitting on all 3 experiment(s) from its training fit..."
     )
-    assert lines[9].endswith(f"(refit); {ended[best, 'refit'].outcome}")
-    assert lines[10].startswith(
+    assert lines[16].endswith(f"(refit); {ended[best, 'refit'].outcome}")
+    assert lines[17].startswith(
         f"{best}: fit on all 3 experiment(s) from its own start"
     )
-    assert lines[11].endswith(f"(template); {ended[best, 'template'].outcome}")
-    assert len(lines) == 12
+    assert lines[18].endswith(f"(template); {ended[best, 'template'].outcome}")
+    assert len(lines) == 19
 
 
 def test_selected_model_is_never_worse_than_its_template_fitted_alone():
@@ -392,3 +434,136 @@ def test_a_programming_error_in_a_candidate_propagates():
     # not a failed fit.
     with pytest.raises(TypeError, match="model"):
         compare_models({"not a model": lambda train: "dahl"}, runs[:1], runs[1:])
+
+
+# --- Cross-validation, parsimony and the default candidates (issue 25) ---
+
+
+def test_parsimony_picks_the_simpler_model_within_one_standard_error():
+    spencer = np.array([0.10, 0.12, 0.11, 0.13])
+    # Bouc–Wen - Spencer per record: 0.01, -0.01, 0.02, -0.01; mean 0.0025, sample
+    # std 0.015, standard error 0.015/√4 = 0.0075 ≥ 0.0025: within one error.
+    bouc_wen = spencer + np.array([0.01, -0.01, 0.02, -0.01])
+    bingham = spencer + 0.2  # far worse on every record
+    # Given in any order; the order of simplicity decides among the close ones.
+    rule = parsimony(["spencer", "bingham", "bouc_wen"], [spencer, bingham, bouc_wen])
+    assert (rule.best, rule.chosen) == ("spencer", "bouc_wen")
+    assert rule.names == ("bingham", "bouc_wen", "spencer")
+    np.testing.assert_allclose(rule.standard_error[1:], [0.0075, 0.0], rtol=1e-12)
+    np.testing.assert_allclose(rule.mean_nrmse[1], 0.1175, rtol=1e-12)  # 0.115 + 0.0025
+    assert rule.num_records == 4 and "bouc_wen" in rule.reason
+    # Consistently worse by 0.01 (± 0.002): standard error 0.0008 < 0.01, so the
+    # better (richer) model is kept.
+    bouc_wen = spencer + np.array([0.01, 0.012, 0.008, 0.010])
+    rule = parsimony(["bouc_wen", "spencer"], [bouc_wen, spencer])
+    assert (rule.best, rule.chosen) == ("spencer", "spencer")
+    np.testing.assert_allclose(
+        rule.standard_error[0], np.std([0, 0.002, -0.002, 0], ddof=1) / 2, rtol=1e-9
+    )
+
+
+def test_parsimony_prefers_no_lag_and_never_a_diverged_model():
+    errors = np.array([0.05, 0.07, 0.06])
+    rule = parsimony(["spencer_lag", "spencer"], [errors, errors])
+    assert rule.chosen == "spencer" and rule.names == ("spencer", "spencer_lag")
+    # A simpler model whose simulation diverged on one record is never chosen.
+    rule = parsimony(["dahl", "lugre"], [[0.05, np.inf, 0.06], errors + 0.001])
+    assert rule.chosen == "lugre" and rule.mean_nrmse[0] == np.inf
+
+
+def test_cv_folds_hold_out_levels_then_records():
+    # Five levels, two records at 0.5 A: the levels fold holds out 0.25 and 0.75 A;
+    # the records fold every third record (by input, then name) from the third, of
+    # 0, .25, .5, .5b, .75, 1: ".5 A" (never the last).
+    experiments = [_fake(c, f"{c} A") for c in (0.0, 0.25, 0.5, 0.75, 1.0)]
+    experiments.append(_fake(0.5, "0.5 A b"))
+    levels, records = cv_folds(experiments)
+    assert (levels.kind, levels.test, levels.fraction) == ("levels", (1, 3), None)
+    assert levels.train == (0, 2, 4, 5)
+    assert (records.kind, records.test) == ("records", (2,))
+    assert records.train == (0, 1, 3, 4, 5)
+    assert records.description == (
+        "held out 1 of 6 (every third experiment, from the third): 0.5 A"
+    )
+    # The first fold is `holdout_split`'s.
+    _, test, _, description = holdout_split(experiments)
+    assert [e.name for e in test] == ["0.25 A", "0.75 A"]
+    assert description == levels.description
+
+
+def test_cv_folds_fill_in_with_time_folds():
+    # Three levels, one record each: no records fold is left (the third record is
+    # the last), so the last third of every record is the second fold.
+    experiments = [_fake(c, f"{c} A", duration=3.0) for c in (0.0, 0.5, 1.0)]
+    levels, time = cv_folds(experiments)
+    assert levels.test == (1,) and time.kind == "time"
+    assert time.fraction == pytest.approx(1 / 3)
+    assert time.train == time.test == (0, 1, 2)
+    train, test, split = fold_data(experiments, time)
+    assert test == experiments
+    np.testing.assert_allclose(split, [2.0, 2.0, 2.0])
+    np.testing.assert_allclose(train[0].t, np.linspace(0.0, 1.8, 7))
+    # One level: every third record from the second, then the time fold.
+    records, time = cv_folds([_fake(1.0, name) for name in "abcde"])
+    assert records.test == (1,) and time.kind == "time"
+    # Fewer than 3 records: two time folds, the last third and the last half.
+    first, second = cv_folds(experiments[:2])
+    assert [f.kind for f in (first, second)] == ["time", "time"]
+    assert (first.fraction, second.fraction) == pytest.approx((1 / 3, 1 / 2))
+    _, _, split = fold_data(experiments[:2], second)
+    np.testing.assert_allclose(split, [1.5, 1.5])
+
+
+def test_select_model_and_the_command_line_share_the_default_candidates(monkeypatch):
+    import argparse
+
+    import jaxmr.templates
+    from jaxmr._cli import fit as cli_fit
+    from jaxmr._identify import select
+
+    constant = [_fake(c, f"{c} A") for c in (0.0, 0.5, 1.0)]
+    varying = [_fake(0.0, "a")]
+    varying[0].current = np.linspace(0.0, 1.0, len(varying[0].t))
+    assert jaxmr.templates.default_candidates(constant) == [
+        "bingham",
+        "dahl",
+        "lugre",
+        "bouc_wen",
+        "spencer",
+        "shear_thinning_spencer",
+    ]
+    assert jaxmr.templates.default_candidates(varying)[6:] == [
+        "bouc_wen_lag",
+        "spencer_lag",
+        "shear_thinning_spencer_lag",
+    ]
+    args = argparse.Namespace(candidates=None, channel_delay=False)
+    seen = []
+
+    class Stop(Exception):
+        pass
+
+    def capture(names_or_models, *args, **kwargs):
+        seen.append(list(names_or_models))
+        raise Stop
+
+    monkeypatch.setattr(select, "compare_models", capture)
+    for experiments in (constant, varying):
+        with pytest.raises(Stop):
+            jaxmr.select_model(None, experiments)
+        assert seen[-1] == cli_fit._candidates(args, experiments)
+        assert seen[-1] == jaxmr.templates.default_candidates(experiments)
+
+
+def test_selection_finds_the_family_that_made_the_data(brake):
+    """Small records, few steps: Dahl data (three 1-cycle runs, 1 % noise) → dahl
+    over Bouc–Wen (no better on held-out data, so parsimony keeps the simpler);
+    Bouc–Wen data (the brake) → bouc_wen over dahl (clearly better)."""
+    options = dict(max_steps=15, statistics_refinement=1, screen_steps=10)
+    runs = dahl_runs((4.0, 5.0, 6.0), (3.0, 3.0, 3.0))
+    dahl = jaxmr.select_model(["bouc_wen", "dahl"], runs, **options)
+    assert dahl.name == "dahl", dahl.parsimony
+    _, _, experiments = brake
+    bouc_wen = jaxmr.select_model(["dahl", "bouc_wen"], experiments, **options)
+    assert bouc_wen.name == "bouc_wen", bouc_wen.parsimony
+    assert bouc_wen.parsimony.best == "bouc_wen"

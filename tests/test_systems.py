@@ -14,6 +14,9 @@ import numpy as np
 import pytest
 
 import jaxmr
+import jaxmr.data
+
+from .helpers import shared_data
 
 NO_DAMPER = jaxmr.Bingham(f_c=0.0, c0=0.0)
 MR = jaxmr.Damper(jaxmr.review_quarter_car_damper(), jaxmr.FirstOrderLag(150.0))
@@ -258,3 +261,45 @@ def test_the_deprecated_loop_keywords_warn_and_give_the_same_run():
         old = jaxmr.free_decay(rig, 0.0, duration=0.02, dt=2e-3, delay=0)
     np.testing.assert_array_equal(old.states, new.states)
     assert new.ts.shape == (10,)
+
+
+# A Spencer model that `jaxmr.fit` found on three UTFSM files (2mm5Hz0A, 5mm3Hz0x25A,
+# 5mm3Hz1A; the "spencer" template, 30 steps, NRMSE 0.085-0.100), its values rounded
+# to 4-5 digits and kept here because the fit takes 30 s. Its state relaxes within
+# ~0.1 mm of travel (A = 1e4 1/m): stiff where the car drives it fast.
+FITTED_SPENCER = jaxmr.Spencer(
+    alpha=jaxmr.LinearLaw(168.4, 775.5),
+    c0=jaxmr.LinearLaw(0.02475, 6713.3),
+    k0=0.0,
+    c1=jaxmr.LinearLaw(7743.2, 118746.5),
+    k1=9.221,
+    x0=-0.2904,
+    gamma=8739.5,
+    beta=0.6274,
+    A=1e4,
+    n=3.1838,
+)
+
+
+def test_a_fitted_spencer_damper_runs_in_the_passenger_car_at_default_settings():
+    """Issue 27: at 0 A on an ISO C road at 20 m/s the car drives the fitted damper at
+    ~2 m/s, 20x its data's ±0.09 m/s. The default step is chosen from the damper's
+    stiffness (64 substeps here), so the run is finite, with a warning naming the
+    fitted range; with the old default, `FixedStep()`, it diverges, and the error
+    says what to change."""
+    files = jaxmr.data.load_utfsm(shared_data("utfsm_mr_damper", "sine"))
+    names = ("2mm5Hz0A", "5mm3Hz0x25A", "5mm3Hz1A")
+    fitted_range = jaxmr.FittedRange.from_experiments(
+        [e for e in files if e.name in names]
+    )
+    system = car(FITTED_SPENCER)
+    road = jaxmr.iso8608_road("C", 20.0, 1.0, jax.random.key(0))
+    with pytest.warns(jaxmr.OutsideFittedRange, match=r"velocity spans .* the fitted"):
+        solution = jaxmr.simulate_system(
+            system, road, 0.0, 1.0, fitted_range=fitted_range
+        )
+    assert solution.result == jaxmr.RESULTS.successful
+    assert np.all(np.isfinite(solution.states))
+    assert np.max(np.abs(solution["damper_velocity"])) > 10 * fitted_range.velocity[1]
+    with pytest.raises(eqx.EquinoxRuntimeError, match=r"FixedStep\(substeps=16\)"):
+        jaxmr.simulate_system(system, road, 0.0, 1.0, integrator=jaxmr.FixedStep())

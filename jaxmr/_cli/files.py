@@ -15,9 +15,10 @@ import json
 import math
 import os
 import tempfile
+import warnings
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, TypeVar
 
 import jaxmr
 
@@ -33,16 +34,74 @@ FORCE_HELP = "replace existing output files (never one of the inputs)"
 # Reading
 
 
-def read_experiments(paths: Sequence[str], *, need_force: bool, why: str) -> list:
+ACCEPT_UNITS_HELP = (
+    "go on with values that are implausible in their declared (or SI) units, e.g. a "
+    "displacement amplitude above 0.5 m (by default the command stops there: such a "
+    "file is almost always in other units)"
+)
+
+
+_Read = TypeVar("_Read")
+
+
+def checking_units(read: Callable[[], _Read], *, accept: bool, fix: str) -> _Read:
+    """`read()`, refusing an implausible unit: the data layer's `DataWarning`s of kind
+    "unit" become a `CLIError` naming the column and the unit its values look like,
+    with `fix` (how to declare the unit); with `accept` they stay warnings. The other
+    warnings go on to the command's printer, once each."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        result = read()
+    units = [
+        w.message
+        for w in caught
+        if isinstance(w.message, jaxmr.data.DataWarning) and w.message.kind == "unit"
+    ]
+    for w in caught:
+        if accept or w.message not in units:
+            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+    if units and not accept:
+        lines = []
+        for u in units:
+            looks = f", which look like {u.suggested}" if u.suggested else ""
+            lines.append(f"{u} [column `{u.column}`{looks}]")
+        raise CLIError(
+            "implausible unit(s), nothing done:\n  "
+            + "\n  ".join(lines)
+            + f"\n{fix}; or pass --accept-units if the values are right"
+        )
+    return result
+
+
+def read_experiments(
+    paths: Sequence[str],
+    *,
+    need_force: bool,
+    why: str,
+    accept_units: bool | None = None,
+) -> list:
     """Read canonical CSV files; every problem becomes a `CLIError` with the data
-    layer's message (which names the file, the line and the fix)."""
+    layer's message (which names the file, the line and the fix). With `accept_units`
+    False an implausible unit is an error (`checking_units`); None or True: a
+    warning."""
     experiments = []
     for path in paths:
         if not Path(path).is_file():
             what = "is a directory" if Path(path).is_dir() else "no such file"
             raise CLIError(f"{path}: {what}")
         try:
-            experiment = jaxmr.data.read_csv(path)
+            if accept_units is None:
+                experiment = jaxmr.data.read_csv(path)
+            else:
+                experiment = checking_units(
+                    lambda path=path: jaxmr.data.read_csv(path),
+                    accept=accept_units,
+                    fix=(
+                        "write the file in SI units, e.g. with the column's unit "
+                        "declared: `jaxmr convert table RAW --columns t,x:mm,... --out "
+                        "DIR`"
+                    ),
+                )
         except ValueError as e:
             raise CLIError(str(e)) from e
         except (OSError, UnicodeDecodeError) as e:
@@ -90,7 +149,11 @@ def with_processing(experiments, option: str, key: str, flag: str) -> list:
     value = seconds_option(option, flag)
     if value is None:
         return list(experiments)
-    return [dataclasses.replace(e, **{key: value}) for e in experiments]
+    # Rebuilding an experiment checks its data again: its warnings, said once when
+    # the file was read (naming the file), would come again naming the experiment.
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", jaxmr.data.DataWarning)
+        return [dataclasses.replace(e, **{key: value}) for e in experiments]
 
 
 def load_model(path: str):

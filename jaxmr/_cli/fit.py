@@ -4,7 +4,7 @@ files and write it with a report.
 `run` reads the files (`_read`), fits (`_fit_model`: one template, `_fit_one`, or a
 selection among candidates, `_select`), then reports and writes the model
 (`_fit_report`, `_save_model`). While it fits, `_FitLog` prints its progress (the
-steps, and `select_model`'s events) and `_Interrupts` turns a Ctrl-C into the `stop`
+steps, and `select_model`'s own lines) and `_Interrupts` turns a Ctrl-C into the `stop`
 event of `fit` and `select_model`: stop at the next step with the best model so far.
 """
 
@@ -25,6 +25,7 @@ import jaxmr
 
 from .errors import INTERRUPTED, CLIError
 from .files import (
+    ACCEPT_UNITS_HELP,
     FORCE_HELP,
     check_writable_file,
     file_digest,
@@ -36,9 +37,6 @@ from .files import (
 )
 
 AUTO = "auto"
-# The candidates of `--model auto`: the richest structures first (their screening fits
-# decide), each behind a fitted input lag when the input varies within a file.
-AUTO_CANDIDATES = ("shear_thinning_spencer", "spencer", "bouc_wen")
 # How `jaxmr fit --channel-delay` names a model seen through a fitted channel delay.
 DELAY_SUFFIX = " + channel delay"
 # The names of `jaxmr.templates.MODEL_TEMPLATES`, for the help (that module imports
@@ -70,7 +68,9 @@ def add_parser(subparsers) -> None:
             f"Models: {names}, or auto (fit every model on part of the data, select the "
             "one with the lowest held-out error, refit it on all the files). Writes "
             "the fitted model with a report (parameters, standard errors, NRMSE per "
-            "file, why the fit stopped, unidentified parameters)."
+            "file, why the fit stopped, unidentified parameters) and the operating "
+            "range it was fitted on (displacement, velocity, input: "
+            "jaxmr.load_fitted_range)."
         ),
     )
     command.add_argument(
@@ -92,8 +92,9 @@ def add_parser(subparsers) -> None:
         default=None,
         help=(
             "with --model auto: the comma-separated models to choose from (default: "
-            + ", ".join(AUTO_CANDIDATES)
-            + "; their _lag variants when the input varies within a file)"
+            "one of each family, bingham, dahl, lugre, bouc_wen, spencer, "
+            "shear_thinning_spencer, and the _lag variants of the last three when the "
+            "input varies within a file: jaxmr.templates.default_candidates)"
         ),
     )
     command.add_argument(
@@ -110,9 +111,12 @@ def add_parser(subparsers) -> None:
     command.add_argument(
         "--finalists",
         type=int,
-        default=2,
+        default=None,
         metavar="N",
-        help="with --model auto: how many screened candidates get a full fit (default 2)",
+        help=(
+            "with --model auto: the fewest screened candidates that get a full fit; "
+            "every one within 1.5x of the best screened score does too (default 3)"
+        ),
     )
     command.add_argument(
         "--smoothing",
@@ -156,6 +160,7 @@ def add_parser(subparsers) -> None:
         metavar="N",
         help="starts per fit: the data-scaled guess plus N-1 random ones (default 1)",
     )
+    command.add_argument("--accept-units", action="store_true", help=ACCEPT_UNITS_HELP)
     command.add_argument("files", nargs="+", metavar="FILE", help="CSV experiments")
     command.set_defaults(run=run)
 
@@ -193,9 +198,36 @@ def run(args: argparse.Namespace) -> int:
             name, args.files, experiments, result, elapsed, selection, warnings
         )
         _print_summary(name, result, elapsed)
-        if _save_model(result.model, out, report, replacing=out in replacing):
+        # Where the model was fitted, saved beside it (`jaxmr.load_fitted_range`).
+        fitted_range = jaxmr.FittedRange.from_experiments(experiments)
+        if _save_model(
+            result.model, out, report, fitted_range, replacing=out in replacing
+        ):
             interrupts.count += 1
+        if _diverged(args.files, result, out):
+            return 1
         return _exit_status(result, interrupts, out)
+
+
+def _diverged(files, result, out: Path) -> bool:
+    """Say so (and return True) when the fitted model's simulation of an experiment
+    diverged: its state left its bounds or stopped being finite (`FitResult.rmse`
+    is then inf), so its forces are no fit, however finite."""
+    bad = [
+        f"{path} (experiment {name!r})"
+        for path, name, error in zip(files, result.experiment_names, result.rmse)
+        if not math.isfinite(error)
+    ]
+    if bad:
+        print(
+            f"jaxmr fit: failed: the fitted model's simulation diverged on "
+            f"{', '.join(bad)} (its state left its bounds or stopped being finite); "
+            f"the parameters are in {out}, but they are no fit. Check that the "
+            "displacement and velocity columns agree (`jaxmr predict` names the time), "
+            "or try another model or more starts (--starts)",
+            file=sys.stderr,
+        )
+    return bool(bad)
 
 
 def _check_options(args: argparse.Namespace) -> None:
@@ -204,14 +236,19 @@ def _check_options(args: argparse.Namespace) -> None:
             f"unknown model {args.model!r}; choose one of "
             f"{', '.join(TEMPLATE_NAMES)}, or {AUTO}"
         )
-    if args.max_steps < 1 or args.starts < 1 or args.finalists < 1:
+    finalists = 1 if args.finalists is None else args.finalists
+    if args.max_steps < 1 or args.starts < 1 or finalists < 1:
         raise CLIError("--max-steps, --starts and --finalists must be at least 1")
 
 
 def _read(args: argparse.Namespace) -> list:
     """Read the files, with their smoothing and discarded start as the options say
     (`Experiment.smoothing`, `.discard`), and say what was read."""
-    experiments = read_experiments(args.files, need_force=True, why="fitting")
+    # An implausible unit stops the fit (a file in mm fits to nonsense) unless
+    # --accept-units.
+    experiments = read_experiments(
+        args.files, need_force=True, why="fitting", accept_units=args.accept_units
+    )
     experiments = with_processing(
         experiments, args.smoothing, "smoothing", "--smoothing"
     )
@@ -269,14 +306,13 @@ def _fit_one(args, experiments: list, options: dict):
 
 
 def _candidates(args, experiments) -> list[str] | dict:
-    """The candidates of `auto`: the names of `--candidates` (default
-    `AUTO_CANDIDATES`, their `_lag` variants when the input varies within a file), or
+    """The candidates of `auto`: the names of `--candidates` (default the library's,
+    `jaxmr.templates.default_candidates`), or
     with `--channel-delay` their templates behind a channel delay, by name."""
     import jaxmr.templates
 
     if args.candidates is None:
-        lag = jaxmr.templates.input_varies_in_time(experiments)
-        names = [f"{c}_lag" if lag else c for c in AUTO_CANDIDATES]
+        names = jaxmr.templates.default_candidates(experiments)
     else:
         names = [c.strip() for c in args.candidates.split(",") if c.strip()]
         unknown = [c for c in names if c not in TEMPLATE_NAMES]
@@ -328,7 +364,8 @@ def _select(args, experiments: list, options: dict, log: "_FitLog"):
         selection = jaxmr.select_model(
             candidates,
             *data,  # each experiment with its own smoothing and discard
-            finalists=args.finalists,
+            # The library's default unless given (`jaxmr.select_model`'s).
+            **({} if args.finalists is None else {"finalists": args.finalists}),
             callback=log.event,
             log=log.line,
             **options,
@@ -482,7 +519,9 @@ class _FitLog:
 # What it reports and writes
 
 
-def _save_model(model, out: Path, report: dict, *, replacing: bool) -> bool:
+def _save_model(
+    model, out: Path, report: dict, fitted_range, *, replacing: bool
+) -> bool:
     """Write the parameter file atomically (`_write_atomically`). A write stopped by a
     `KeyboardInterrupt` (a Ctrl-C that came past `_Interrupts`) is made again. If the
     file cannot be written, the model goes to a new file in the temporary directory,
@@ -492,7 +531,7 @@ def _save_model(model, out: Path, report: dict, *, replacing: bool) -> bool:
     """
 
     def write(path):
-        jaxmr.save_model(model, path, report=report)
+        jaxmr.save_model(model, path, fitted_range=fitted_range, report=report)
 
     interrupted = False
     for _ in range(3):
@@ -572,6 +611,9 @@ def _fit_report(name, files, experiments, result, elapsed, selection, warnings) 
     if selection is not None:
         report["selection"] = {
             "holdout": selection.holdout,
+            "folds": list(selection.folds),
+            # The parsimony rule's decision (`Selection.parsimony`), as data.
+            "parsimony": _parsimony_json(selection.parsimony),
             # Which fit on every file was kept (`Selection.kept`), and their times.
             "kept": selection.kept,
             "refit_time_s": _json_seconds(selection.refit_time),
@@ -583,6 +625,8 @@ def _fit_report(name, files, experiments, result, elapsed, selection, warnings) 
                     "fit_time_s": round(s.fit_time, 3),
                     "screening_time_s": _json_seconds(s.screening_time),
                     "full_time_s": _json_seconds(s.full_time),
+                    "cv_time_s": _json_seconds(s.cv_time),
+                    "mean_test_nrmse": _json_number(s.mean_test_nrmse),
                     "outcome": s.outcome,
                     "median_train_nrmse": _json_number(s.median_train_nrmse),
                     "median_test_nrmse": _json_number(s.median_test_nrmse),
@@ -596,6 +640,27 @@ def _fit_report(name, files, experiments, result, elapsed, selection, warnings) 
     report["discard_s"] = [e.discard for e in experiments]
     report["warnings"] = warnings
     return report
+
+
+def _parsimony_json(decision) -> dict | None:
+    if decision is None:
+        return None
+    return {
+        "best": decision.best,
+        "chosen": decision.chosen,
+        "reason": decision.reason,
+        "num_records": decision.num_records,
+        "candidates": [
+            {
+                "template": n,
+                "mean_test_nrmse": _json_number(m),
+                "std_error": _json_number(e),
+            }
+            for n, m, e in zip(
+                decision.names, decision.mean_nrmse, decision.standard_error
+            )
+        ],
+    }
 
 
 def _json_number(x):

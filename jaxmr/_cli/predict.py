@@ -2,6 +2,7 @@
 input, written as a canonical CSV."""
 
 import argparse
+import warnings
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -90,21 +91,22 @@ def run(args: argparse.Namespace) -> int:
     # Through the experiment's own smoothing (`Experiment.smoothing`).
     (predicted,) = jaxmr.predict_all(model, [experiment])
     if not np.all(np.isfinite(predicted)):
-        raise CLIError(
-            f"the simulation of {args.file} diverged (non-finite force): the model's "
-            "parameters do not suit this input"
+        raise CLIError(diverged_message(args.file, experiment, predicted))
+    # Rebuilding checks the data again: its warnings were said, naming the file, when
+    # it was read.
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", jaxmr.data.DataWarning)
+        result = jaxmr.data.Experiment(
+            experiment.t,
+            experiment.x,
+            experiment.v,
+            experiment.current,
+            predicted,
+            name=experiment.name,
+            rotary=experiment.rotary,
+            drive=experiment.drive,
+            velocity_source=experiment.velocity_source,
         )
-    result = jaxmr.data.Experiment(
-        experiment.t,
-        experiment.x,
-        experiment.v,
-        experiment.current,
-        predicted,
-        name=experiment.name,
-        rotary=experiment.rotary,
-        drive=experiment.drive,
-        velocity_source=experiment.velocity_source,
-    )
     load = "T" if experiment.rotary else "F"
     comment = (
         f"{load}: predicted by jaxmr {jaxmr.__version__} with the "
@@ -130,6 +132,22 @@ def run(args: argparse.Namespace) -> int:
         replacing=out in replacing,
     )
     return 0
+
+
+def diverged_message(path, experiment, predicted) -> str:
+    """What `predict` and `report` say of a prediction that is not finite (NaN from
+    `jaxmr.predict_all` where the model's state left its bounds or the solve
+    diverged): the experiment, the time, and what to try."""
+    first = int(np.argmax(~np.isfinite(np.asarray(predicted))))
+    t = float(np.asarray(experiment.t)[first])
+    return (
+        f"the simulation of {path} (experiment {experiment.name!r}) diverged at "
+        f"t = {t:g} s: the model's state left its bounds or stopped being finite, so "
+        "no force is written. Check that the displacement and velocity columns agree "
+        "there (a step in one that the other does not show) and that the motion "
+        "lies within the range the model was fitted on; else the model's parameters "
+        "do not suit this input"
+    )
 
 
 def _prediction_error(path, experiment, predicted) -> str:

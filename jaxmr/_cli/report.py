@@ -5,6 +5,7 @@ import argparse
 import csv
 import dataclasses
 import math
+import warnings
 from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -30,6 +31,7 @@ from .files import (
     units,
     write_text,
 )
+from .predict import diverged_message
 
 if TYPE_CHECKING:
     import jaxmr.data  # at run time `jaxmr.data` is imported on first use (it imports JAX)
@@ -54,7 +56,9 @@ def add_parser(subparsers) -> None:
             "the same rule. The figures shade the model's prediction band from the "
             "fitted parameters' uncertainty, and the tables give its median "
             "half-width per file (none for a parameter file without the fit's "
-            "covariance)."
+            "covariance). report.md also gives the fit's verdict, its poorly "
+            "determined parameters, and the operating range it was fitted on "
+            "(displacement, velocity, current), naming the files beyond it."
         ),
     )
     command.add_argument("params", metavar="PARAMS.json", help="the fitted model")
@@ -137,7 +141,13 @@ def _as_fitted(files, experiments, fit_report: dict) -> tuple[list, list[str]]:
                 changes[key] = float(values[k])
             elif k is None and not getattr(e, key) and common[key] is not None:
                 changes[key] = common[key]  # unseen, none of its own: the fit's
-        result.append(dataclasses.replace(e, **changes) if changes else e)
+        if changes:
+            # Rebuilding checks the data again: its warnings were said, naming the
+            # file, when it was read.
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", jaxmr.data.DataWarning)
+                e = dataclasses.replace(e, **changes)
+        result.append(e)
     return result, status
 
 
@@ -169,6 +179,9 @@ def run(args: argparse.Namespace) -> int:
     experiments, status = _as_fitted(args.files, experiments, fit_report)
     # Through each experiment's own smoothing (`Experiment.smoothing`).
     predicted = jaxmr.predict_all(model, experiments)
+    for path, e, p in zip(args.files, experiments, predicted):
+        if not np.all(np.isfinite(p)):  # a failure, not a figure of absurd forces
+            raise CLIError(diverged_message(path, e, p))
     bands, no_band = prediction_bands(
         model, data, experiments, args.params, args.band_level
     )
@@ -248,8 +261,18 @@ def run(args: argparse.Namespace) -> int:
 
     write_text(tables[0], write_table, replacing=tables[0] in replacing)
     band_text = _band_markdown(rows, args.band_level, force_unit, no_band)
+    range_text = _range_markdown(args.params, data, args.files, experiments)
+    unit_text = _units_caption(experiments[0], force_unit)
     markdown = _report_markdown(
-        args.params, model, rows, parameters, fit_report, force_unit, args, band_text
+        args.params,
+        model,
+        rows,
+        parameters,
+        fit_report,
+        force_unit,
+        args,
+        band_text,
+        [*unit_text, "", *range_text],
     )
     write_text(tables[1], lambda f: f.write(markdown), replacing=tables[1] in replacing)
     print()
@@ -257,8 +280,9 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _parameter_rows(model, fit_report: dict) -> list[tuple[str, float, str]]:
-    """(name, value, standard error or 'fixed') per parameter of the model."""
+def _parameter_rows(model, fit_report: dict) -> list[tuple[str, float, str, str]]:
+    """(name, value, standard error or 'fixed', relative standard error) per
+    parameter of the model."""
     errors = {
         p.get("name"): p.get("std_error")
         for p in fit_report.get("parameters", [])
@@ -268,16 +292,86 @@ def _parameter_rows(model, fit_report: dict) -> list[tuple[str, float, str]]:
     for name, value in _model_parameters(model):
         if name in errors:
             se = errors[name]
-            rows.append((name, value, "n/a" if se is None else f"{se:.3g}"))
+            if se is None:  # saved as null: not finite
+                rows.append((name, value, "n/a", "n/a"))
+            else:
+                relative = f"{abs(se / value):.1%}" if value != 0 else "n/a"
+                rows.append((name, value, f"{se:.3g}", relative))
         else:
-            rows.append((name, value, "fixed" if errors else ""))
+            rows.append((name, value, "fixed" if errors else "", ""))
     return rows
 
 
+def _units_caption(experiment, force_unit: str) -> list[str]:
+    """The unit system of the parameter table: jaxmr's models do not record their
+    parameters' units, so the table states the system they follow."""
+    motion, speed = ("rad", "rad/s") if experiment.rotary else ("m", "m/s")
+    drive = "V" if experiment.drive == "voltage" else "A"
+    return [
+        f"Units of the parameters: SI, in the system of the data: force in "
+        f"{force_unit}, displacement in {motion}, velocity in {speed}, input in "
+        f"{drive}, time in s. Each parameter is in the unit that makes the model's "
+        f"force come out in {force_unit} from these (a viscous coefficient in "
+        f"{force_unit}·s/{motion}, a stiffness in {force_unit}/{motion}, a current "
+        f"law's slope per {drive}); a standard error is in its parameter's unit, "
+        "and value ± 1.96 std error is a 95 % interval."
+    ]
+
+
+def _range_markdown(params, data: dict, files, experiments) -> list[str]:
+    """The operating range the model was fitted on (`jaxmr.FittedRange`, saved by
+    `jaxmr fit`), and the files of this report that leave it."""
+    saved = data.get("fitted_range")
+    if saved is None:
+        return [
+            "## Fitted operating range",
+            "",
+            f"Unknown: {params} holds no fitted range (written by an older `jaxmr "
+            "fit`, or by `jaxmr.save_model` without `fitted_range`).",
+        ]
+    try:
+        fitted = jaxmr.FittedRange.from_dict(saved)
+    except ValueError as e:
+        raise CLIError(f"{params}: {e}") from e
+    units = fitted.units()
+    names = {
+        "displacement": "angle" if fitted.rotary else "displacement",
+        "velocity": "angular velocity" if fitted.rotary else "velocity",
+        "input": fitted.drive,
+    }
+    lines = [
+        "## Fitted operating range",
+        "",
+        "The model was fitted on these extremes of its files' samples; beyond them "
+        "its force is extrapolation (`jaxmr.simulate`, `sweep` and `simulate_system` "
+        "given `fitted_range=jaxmr.load_fitted_range(...)` warn there).",
+        "",
+        "| quantity | low | high | unit |",
+        "|---|---:|---:|---|",
+    ]
+    for key, label in names.items():
+        low, high = getattr(fitted, key)
+        lines.append(f"| {label} | {low:.4g} | {high:.4g} | {units[key]} |")
+    lines.append("")
+    outside = []
+    for path, e in zip(files, experiments):
+        found = fitted.exceeded(e.x, e.v, e.current)
+        if found:
+            outside.append(f"- {path}: {'; '.join(found)}.")
+    if outside:
+        lines += ["Files of this report beyond the fitted range:", "", *outside]
+    else:
+        lines.append("Every file of this report lies within the fitted range.")
+    return lines
+
+
 def _report_markdown(
-    params, model, rows, parameters, fit_report, force_unit, args, band_text
+    params, model, rows, parameters, fit_report, force_unit, args, band_text, more
 ) -> str:
+    """report.md: the verdict, the errors per file and what the band says of them,
+    the parameters, and `more` (the parameters' units, the fitted range)."""
     lines = [f"# jaxmr report: {type(model).__name__} from {params}", ""]
+    lines += _verdict_markdown(fit_report)
     for status, what in ((FITTED, "fitted"), (UNSEEN, "unseen (not fitted)")):
         scores = [r[6] for r in rows if r[2] == status]
         if scores:
@@ -310,21 +404,62 @@ def _report_markdown(
     lines += ["", *band_text]
     lines += [
         "",
-        "| parameter | value | std error |",
-        "|---|---:|---:|",
+        "## Parameters",
+        "",
+        "| parameter | value | std error | relative |",
+        "|---|---:|---:|---:|",
     ]
-    for name, value, se in parameters:
-        lines.append(f"| {name} | {value:.6g} | {se} |")
-    if fit_report:
-        outcome = fit_report.get("outcome", fit_report.get("reason", "unknown"))
-        lines += ["", f"Fit: {outcome}."]
-        for warning in fit_report.get("unidentified", []):
-            lines.append(f"WARNING: {warning}")
-        for warning in fit_report.get("warnings", []):
-            lines.append(f"WARNING (while fitting): {warning}")
-    for warning in getattr(args, "warnings", []):
+    for name, value, se, relative in parameters:
+        lines.append(f"| {name} | {value:.6g} | {se} | {relative} |")
+    lines += ["", *more]
+    warnings = getattr(args, "warnings", [])
+    if warnings:
+        lines.append("")
+    for warning in warnings:
         lines.append(f"WARNING (this report): {warning}")
     return "\n".join(lines) + "\n"
+
+
+def _verdict_markdown(fit_report: dict) -> list[str]:
+    """Can the fit be trusted: its verdict (`FitResult.outcome`, as saved), the
+    parameter combinations it did not identify, the poorly determined groups, and
+    what the fit warned of."""
+    if not fit_report:
+        return [
+            "## Verdict",
+            "",
+            "Unknown: the parameter file holds no fit report.",
+            "",
+        ]
+    outcome = fit_report.get("outcome", fit_report.get("reason", "unknown"))
+    lines = ["## Verdict", "", f"Fit: {outcome}."]
+    if fit_report.get("interrupted"):
+        lines.append("The fit was interrupted: the parameters are its best so far.")
+    unidentified = list(fit_report.get("unidentified", []))
+    weak = list(fit_report.get("poorly_determined", []))
+    if "poorly_determined" in fit_report:
+        if weak:
+            lines.append(
+                f"{len(weak)} warning(s) of poorly determined parameters (a group "
+                "the data determine only in combination, or one with a large or no "
+                "finite standard error): the force may still be predicted well, "
+                "their values are not to be relied on one by one:"
+            )
+        else:
+            lines.append(
+                "Every fitted parameter is determined by the data: no redundant "
+                "group, no parameter without a finite or with a large standard error."
+            )
+    lines.append("")
+    for warning in unidentified:
+        lines.append(f"- WARNING: {warning}")
+    for warning in weak:
+        lines.append(f"- WARNING: {warning}")
+    for warning in fit_report.get("warnings", []):
+        lines.append(f"- WARNING (while fitting): {warning}")
+    if unidentified or weak or fit_report.get("warnings"):
+        lines.append("")
+    return lines
 
 
 def _band_markdown(rows, level: float, force_unit: str, no_band) -> list[str]:

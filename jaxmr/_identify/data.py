@@ -36,7 +36,10 @@ class StepPolicy(eqx.Module):
 
     Each sample interval is divided into the fewest equal steps for which a step is at
     most `max_step` [s] long and the piston (rotor) travels at most `max_travel` at the
-    larger of the interval's end velocities.
+    peak speed of the motion simulated in it, the cubic Hermite interpolant of the
+    displacement and velocity columns (which is the larger of the interval's end
+    velocities where the two columns agree; on the 30 UTFSM records it adds 10 steps
+    to 685 369, and where x steps and v does not, it keeps the step stable).
 
     The defaults differ by device, each measured where it applies:
 
@@ -92,9 +95,13 @@ class StepPolicy(eqx.Module):
         travel = travel if self.max_travel is None else self.max_travel
         return step, travel
 
-    def counts(self, t, v, rotary: bool = False) -> np.ndarray:
-        """Steps in each sample interval of an experiment at times `t`, velocities
-        `v` (see the class docstring)."""
+    def counts(self, t, v, rotary: bool = False, x=None) -> np.ndarray:
+        """Steps in each sample interval of an experiment at times `t` [s], velocities
+        `v` [m/s or rad/s] (see the class docstring) and, when given, displacements
+        `x` [m or rad]: the travel limit then holds along the motion actually
+        simulated, the cubic Hermite interpolant of (x, v), whose speed between two
+        samples can far exceed both end velocities where x and v disagree (a step in
+        x that v does not show)."""
         h = np.diff(np.asarray(t, dtype=float))
         if self.substeps is not None:
             return np.full(h.shape, self.substeps * self.refinement, dtype=int)
@@ -105,6 +112,8 @@ class StepPolicy(eqx.Module):
         if travel is not None:
             speed = np.abs(np.asarray(v, dtype=float))
             speed = np.maximum(speed[:-1], speed[1:])
+            if x is not None:
+                speed = np.maximum(speed, _peak_speed(h, x, v))
             counts = np.maximum(counts, np.ceil(h * speed / travel * slack))
         return (np.maximum(1, counts) * self.refinement).astype(int)
 
@@ -120,6 +129,22 @@ class StepPolicy(eqx.Module):
         return StepPolicy(
             self.max_step, self.max_travel, self.substeps, self.refinement * factor
         )
+
+
+def _peak_speed(h, x, v) -> np.ndarray:
+    """The largest |slope| [m/s] of the cubic Hermite interpolant of (x, v) in each
+    sample interval (of lengths `h` [s]), as `_stage_inputs` simulates it: in s ∈ [0, 1]
+    the slope per unit s is the quadratic a s² + b s + c, largest at an end or at its
+    vertex."""
+    x, v = np.asarray(x, dtype=float), np.asarray(v, dtype=float)
+    d0, d1, rise = v[:-1] * h, v[1:] * h, np.diff(x)
+    a = 3 * d0 + 3 * d1 - 6 * rise
+    b = 6 * rise - 4 * d0 - 2 * d1
+    with np.errstate(divide="ignore", invalid="ignore"):
+        vertex = -b / (2 * a)
+        inside = (a != 0) & (vertex > 0) & (vertex < 1)
+        at_vertex = np.where(inside, d0 - b * b / (4 * a), 0.0)
+        return np.maximum(np.maximum(np.abs(d0), np.abs(d1)), np.abs(at_vertex)) / h
 
 
 def as_step_policy(integrator) -> StepPolicy:
@@ -343,7 +368,7 @@ def pack(
     names, runs = [], []
     for k, e in enumerate(experiments):
         name, t, x, v, i, force = _columns(e, k, need_force)
-        r = policy.counts(t, v, bool(getattr(e, "rotary", False)))
+        r = policy.counts(t, v, bool(getattr(e, "rotary", False)), x)
         inputs, steps = _stage_inputs(t, x, v, i, r)
         names.append(name)
         runs.append((t, force, inputs, steps, r))

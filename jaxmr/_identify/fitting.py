@@ -111,7 +111,9 @@ def _report(free, static, data, outcome, stats_data, threshold):
     """The `FitResult` at the best parameters, its statistics from `stats_data` (the
     data with shorter steps: the fixed step's derivative converges more slowly than
     its force, d/dγ of the brake was 16 % off at 0.5 ms steps for n < 1)."""
-    simulated = np.asarray(simulate_jit(eqx.combine(free, static), data))
+    # Guarded: an experiment whose state left its bounds scores NaN (rmse, nrmse inf),
+    # a failure rather than the finite absurd forces of a diverged fixed step.
+    simulated = np.asarray(simulate_jit(eqx.combine(free, static), data, True))
     # Each experiment's residual rows (refinement shortens steps, not samples).
     groups = kept_groups(data.kept_counts)
     stats = statistics(residuals, free, static, stats_data, None, groups)

@@ -22,9 +22,11 @@ from .data import FitData
 DIVERGED = 1e6
 
 
-def _lane(damper, inputs, step, reset, experiments: int):
+def _lane(damper, inputs, step, reset, experiments: int, guard: bool = False):
     """Force at the start of every step of one lane (RK4; state reset where `reset`,
-    at most `experiments` times)."""
+    at most `experiments` times); with `guard`, also whether the state has left its
+    bounds (`state_bounds`, 1 % slack as `simulate`'s) or stopped being finite at or
+    before that step of its experiment."""
     # The states to reset to, computed before the scan for the lane's experiments
     # only and read in it: evaluated inside (under `where`), `initial_state` ran on
     # every step, and a `MagneticStage` traces its virgin magnetisation curve (64 RK4
@@ -35,34 +37,70 @@ def _lane(damper, inputs, step, reset, experiments: int):
     which = jnp.clip(jnp.cumsum(reset) - 1, 0, experiments - 1)
     first = virgin[which]
 
-    def body(y, xs):
+    def outside(y, command):
+        bounds = damper.state_bounds(y, command)
+        bad = ~jnp.all(jnp.isfinite(y))
+        if bounds is None:
+            return bad
+        return bad | jnp.any(jnp.abs(y) > 1.01 * bounds + 1e-12)
+
+    def body(carry, xs):
+        y, bad = carry
         stage, h, start, y_start = xs
         # (x, v, i) at the step's start, midpoint and end.
         begin, middle, end = stage
         y = jnp.where(start, y_start.astype(y.dtype), y)
         force = damper.force(y, *begin)
         rates = lambda y, s: damper.rates(y, *s)
-        return rk4_stages(rates, y, h, begin, middle, end), force
+        y_next = rk4_stages(rates, y, h, begin, middle, end)
+        if not guard:
+            return (y_next, bad), force
+        # Once out, out for the rest of the experiment (a diverged state that comes
+        # back inside its bounds is no valid state either).
+        bad = jnp.where(start, False, bad) | outside(y, begin[2])
+        return (y_next, bad), (force, bad)
 
     (x0, v0, i0) = inputs[0, 0]
     y0 = damper.initial_state(x0, v0, i0)
     if y0.shape[0] == 0:  # a static model (Bingham): no state to integrate
-        return jax.vmap(lambda s: damper.force(y0, *s[0]))(inputs)
-    _, force = jax.lax.scan(body, y0.astype(inputs.dtype), (inputs, step, reset, first))
-    return force
+        force = jax.vmap(lambda s: damper.force(y0, *s[0]))(inputs)
+        return (force, jnp.zeros(force.shape, bool)) if guard else force
+    carry = (y0.astype(inputs.dtype), jnp.zeros((), bool))
+    _, out = jax.lax.scan(body, carry, (inputs, step, reset, first))
+    return out
 
 
-def simulate(model, data: FitData) -> jax.Array:
+def simulate(model, data: FitData, guard: bool = False) -> jax.Array:
     """The model's force [N] (torque [N·m]) at every sample of the packed experiments,
     smoothed like the data where `data` says so, read through the force channel's
-    delay for a `ChannelDelay` (constraint wrappers resolved)."""
+    delay for a `ChannelDelay` (constraint wrappers resolved). With `guard`, NaN from
+    the first sample at which an experiment's state has left its bounds or is not
+    finite: a diverged fixed-step solve, whose finite forces would be absurd."""
     device, delay = split_channel(unwrap(model))
     damper = as_damper(device)
-    lane = functools.partial(_lane, experiments=len(data.offsets))
+    lane = functools.partial(_lane, experiments=len(data.offsets), guard=guard)
     lanes = jax.vmap(lane, in_axes=(None, 0, 0, 0))(
         damper, data.inputs, data.step, data.reset
     )
-    force = lanes.reshape(-1)[data.sample_index]
+    if guard:
+        lane_force, lane_bad = lanes
+        bad = jnp.reshape(lane_bad, -1)[data.sample_index]
+        # Zeros in place of the diverged forces, so that the smoothing's running
+        # integral does not carry them into later experiments; NaN put back below.
+        force = jnp.where(bad, 0.0, jnp.reshape(lane_force, -1)[data.sample_index])
+        force = _smoothed(force, data, delay)
+        # `bad` holds from the first bad sample on: a window is clean where its
+        # last sample is.
+        last = data.hi_index + (data.hi_fraction > 0).astype(data.hi_index.dtype)
+        return jnp.where(bad | (data.smooth & bad[last]), jnp.nan, force)
+    # Without `guard`, `_lane` gives the force alone.
+    force = jnp.reshape(lanes, -1)  # pyright: ignore[reportArgumentType]
+    return _smoothed(force[data.sample_index], data, delay)
+
+
+def _smoothed(force, data: FitData, delay) -> jax.Array:
+    """The simulated force at the samples read through the channel's delay and
+    smoothed like the data."""
     if delay is not None:
         sample = jnp.arange(force.shape[0], dtype=data.first_sample.dtype)
         force = delayed(

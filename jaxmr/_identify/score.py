@@ -39,7 +39,10 @@ def predict_all(
       anything without one), so the prediction is comparable with its force.
 
     **Returns:** one NumPy array of forces [N] (torques [N·m]) per experiment, at its
-    samples; NaN where a simulation diverged.
+    samples; NaN where a simulation diverged: from the first sample at which the
+    model's state is not finite or has left its theoretical bounds
+    (`state_bounds`, e.g. Dahl's |z| <= 1, with 1 % slack), where a fixed-step solve
+    would go on to give finite but absurd forces.
     """
     experiments = list(experiments)
     if not experiments:
@@ -51,7 +54,7 @@ def predict_all(
         smoothing=smoothing,
         need_force=False,
     )
-    force = np.asarray(simulate_jit(model, data))
+    force = np.asarray(simulate_jit(model, data, True))
     return data.split(force)
 
 

@@ -11,7 +11,7 @@ from ._csv import (
     read_processing as read_processing,
     write_csv as write_csv,
 )
-from ._experiment import Experiment as Experiment
+from ._experiment import DataWarning as DataWarning, Experiment as Experiment
 from ._files import write_atomically as write_atomically
 from ._loaders import (
     BOUCWEN_BENCHMARK_FS as BOUCWEN_BENCHMARK_FS,
@@ -26,3 +26,4 @@ from ._loaders import (
     utfsm_smoothing as utfsm_smoothing,
     utfsm_test_conditions as utfsm_test_conditions,
 )
+from ._table import read_table as read_table

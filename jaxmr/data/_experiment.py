@@ -48,10 +48,11 @@ MAX_VELOCITY_RATIO = 10.0
 # the record's large steps (the 95th percentile of |x[k+1] - x[k]|). There the cubic
 # Hermite motion through the samples (`Experiment.motion`), whose slopes are the
 # velocity column, has to cover the displacement step: it moves about 1.5 times the
-# mismatch per sample step, i.e. at least 4 times faster than the column's large
+# mismatch per sample step, i.e. over 4 times faster than the column's large
 # velocities, which the step policy did not plan for. Consistent records stay far below:
-# a velocity lagging by half a sample or 10 % off in scale gives at most about 0.1-0.2
-# times the large steps, and the real records (UTFSM, NEES) at most ... (tests).
+# a velocity lagging by half a sample or 10 % off in scale gives about 0.1-0.2, the
+# UTFSM sine files with their own velocity column at most 0.09, the NEES white-noise
+# record 0.7 (measured).
 MAX_MOTION_MISMATCH = 3.0
 
 _DRIVES = ("current", "voltage")
@@ -303,6 +304,45 @@ def warn_implausible_units(
                     f"with rad); give `{position}` and `{velocity}` in SI units.",
                     velocity,
                 )
+            else:  # units agree: do the samples agree with each other?
+                _warn_motion_steps(t, x, v, position, velocity, rotary, where)
+
+
+def _warn_motion_steps(t, x, v, position, velocity, rotary, where) -> None:
+    """A `DataWarning` (kind "motion") naming the first sample step where the
+    displacement and the measured velocity disagree (`MAX_MOTION_MISMATCH`): a step in
+    one that the other does not show, e.g. two runs joined into one file."""
+    dx = np.diff(x)
+    along = 0.5 * np.diff(t) * (v[:-1] + v[1:])  # the velocity's trapezoid per step
+    scale = float(np.percentile(np.abs(dx), 95))
+    if not scale > 0:
+        return
+    mismatch = np.abs(dx - along)
+    bad = np.flatnonzero(mismatch > MAX_MOTION_MISMATCH * scale)
+    if not bad.size:
+        return
+    k = int(bad[0])
+    unit = "rad" if rotary else "m"
+    which = position if abs(dx[k]) > abs(along[k]) else velocity
+    shows = (
+        f"`{position}` steps by {dx[k]:.4g} {unit} but `{velocity}` integrates to "
+        f"{along[k]:.4g} {unit}"
+    )
+    more = f" (and {bad.size - 1} more such step(s))" if bad.size > 1 else ""
+    warnings.warn(
+        DataWarning(
+            f"{where}: between t = {t[k]:.6g} s and {t[k + 1]:.6g} s {shows}{more}: "
+            f"a step in `{which}` that the other column does not show (two records "
+            "joined? a glitch?). The mismatch is "
+            f"{mismatch[k] / scale:.3g} times the record's large sample steps, so the "
+            f"interpolated motion there moves far faster than `{velocity}` says; check "
+            "the data, or cut the step out (`Experiment.window`).",
+            kind="motion",
+            column=which,
+            time=float(t[k]),
+        ),
+        stacklevel=_user_stacklevel(sys._getframe()),
+    )
 
 
 class Experiment(eqx.Module):
@@ -320,10 +360,15 @@ class Experiment(eqx.Module):
     The constructor checks the data at once (when the arrays are concrete): every column
     finite (the error names the column and the first bad index; nothing is dropped),
     equal lengths, strictly increasing time, at least 3 samples. It warns
-    (`UserWarning`) about values that are implausible in SI units: a displacement
-    amplitude above 0.5 m, a median time step above 1 s, a force above 1e6 N, a current
-    above 50 A, or a measured velocity whose RMS is more than 10 times off that of the
-    displacement's derivative.
+    (`jaxmr.data.DataWarning`, a `UserWarning`, kind `"unit"`) about values that are
+    implausible in SI units: a displacement amplitude above 0.5 m, a median time step
+    above 1 s, a force above 1e6 N, a current above 50 A, or a measured velocity whose
+    RMS is more than 10 times off that of the displacement's derivative; and (kind
+    `"motion"`, with the time) about a measured velocity that disagrees with the
+    displacement at a sample step, i.e. a step in `x` that `v` does not show or the
+    reverse (two runs joined into one file): the step's displacement differs from the
+    trapezoid of `v` over it by more than 3 times the record's large sample steps
+    (the 95th percentile of $|x_{k+1} - x_k|$).
 
     **Arguments:**
 
