@@ -2,24 +2,38 @@
 
 Simulates the published Bouc–Wen brake (`jaxmr.sas_brake_bouc_wen()`) over a grid of
 currents × sine amplitudes × sine frequencies, 10 s each with output at 1 kHz, and
-measures
+measures, every method held to the same accuracy (torque error ≤ 1e-3 of the peak
+torque against a tight reference, Dopri8 at rtol 1e-10, atol 1e-12, checked in the same
+run on every motion at the lowest and highest current):
 
 - jaxmr's fast mode, `FixedStep(substeps=k)` under `sweep` (compile and run timed
-  apart), with `k` the fewest substeps whose torque error is ≤ 1e-3 of the peak torque
-  against a tight reference (Dopri8, rtol 1e-10, atol 1e-12);
+  apart), with `k` the fewest substeps that meet the target; with its shared-state path
+  (z solved once per motion, the torque evaluated at every current: the brake's current
+  laws act only on its output gains) and without it (`*_no_sharing`, one solve per run);
+- the SciPy/NumPy user's vectorised code, with and without state sharing: one
+  `solve_ivp` over the whole batch with a NumPy right-hand side (the method and rtol,
+  from RK45/DOP853 ladders, that meets the target fastest), and a fixed-step NumPy RK4
+  loop over the whole batch (fewest substeps meeting the target); the faster of the two
+  is `speedup_vs_scipy_vectorised`'s baseline;
+- the performance-minded user's numba code: an RK4 loop per run, `@njit(parallel=True)`
+  with `prange` over the runs (or motions, when sharing), `--numba-threads` threads,
+  fewest substeps meeting the target; its compile time reported apart and counted in
+  the `*_with_compile` figures;
+- the old baseline: a `solve_ivp` loop, one run at a time with a plain-Python right-hand
+  side (timed on a few runs and extrapolated per simulated second; `*_scipy_loop`);
+- a minimal hand-written `jax.lax.scan` RK4 kernel (jit + vmap) with jaxmr's step,
+  per run and with z shared per motion (`time_ratio_vs_scan_kernel*`: jaxmr's overhead);
 - the adaptive default `Adaptive()` with `batching="vmap"` and `"map"` (several
-  `batch_size`), on a subset: the figures behind `sweep`'s `"auto"` batching rule;
-- baseline A: a scipy `solve_ivp` loop of equal accuracy (timed on a few runs and
-  extrapolated per simulated second);
-- baseline B: a minimal hand-written `jax.lax.scan` RK4 kernel (jit + vmap) with the
-  same step size, timed the same way, one solve per run and (like-for-like with
-  `sweep`'s shared-state path) z solved once per motion.
+  `batch_size`), on a subset: the figures behind `sweep`'s `"auto"` batching rule.
 
-The brake's current laws act only on its output gains, so `sweep` solves z once per
-motion and evaluates the torque at every current; the figures without that shortcut
-(`*_no_sharing`, `sweep` forced down its full path) are reported beside them.
+Speedups are throughput ratios, simulated seconds per wall second: compilation excluded
+(`speedup_vs_*`) and included (`*_with_compile`: compile + one run). The headline ones
+compare like with like: jaxmr's shared-state path with the baselines' shared forms;
+`*_no_sharing` compares every method solving every run. The NumPy/SciPy baselines run
+on one core (NumPy does not thread these element-wise operations), numba and XLA on
+both; the CPU times are in the JSON.
 
-Run from the repository root:
+Run from the repository root (numba: `pip install -e .[bench]`):
 
     python benchmarks/simulate_sweep.py --json benchmarks/results/simulate_sweep.json
     python benchmarks/simulate_sweep.py --json /tmp/smoke.json --quick   # smoke test
@@ -52,6 +66,15 @@ SCIPY_CANDIDATES = (
     ("DOP853", 1e-10),
     ("RK45", 1e-10),
 )
+# The vectorised solve_ivp (one solve over the batch): per method, rtol tightened from
+# loose until the target is met; the passing setting of the faster method is the
+# baseline (the search's wall times decide, as a user would). Its step
+# is the batch's (RMS error norm over the components), so it may need a tighter rtol
+# than a run alone.
+VECTORISED_CANDIDATES = {
+    "RK45": (1e-5, 1e-6, 1e-7, 1e-8, 1e-9, 1e-10, 1e-11),
+    "DOP853": (1e-6, 1e-7, 1e-8, 1e-9, 1e-10, 1e-11, 1e-12),
+}
 
 
 def parse_args():
@@ -96,6 +119,13 @@ def parse_args():
         help="N > 1: only the process comparison: the fixed-step grid in N local "
         "processes (jax.distributed, one CPU device each) against 1",
     )
+    p.add_argument(
+        "--numba-threads",
+        type=int,
+        default=2,
+        help="threads of the numba baseline (default 2, the cores of the reference "
+        "machine)",
+    )
     p.add_argument("--worker", type=int, help=argparse.SUPPRESS)
     p.add_argument("--port", help=argparse.SUPPRESS)
     p.add_argument("--out", help=argparse.SUPPRESS)
@@ -127,20 +157,15 @@ import jax  # noqa: E402
 
 jax.config.update("jax_enable_x64", True)
 
+# The baselines, and the model's numbers written out for them.
+import _sweep_baselines as baselines  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 import scipy  # noqa: E402
+from _report import write_figures  # noqa: E402
 from jax.sharding import Mesh, NamedSharding, PartitionSpec  # noqa: E402
-from scipy.integrate import solve_ivp  # noqa: E402
 
 import jaxmr  # noqa: E402
-
-# ---------------------------------------------------------------------------------------
-# The model, written out for the baselines (the numbers of jaxmr.sas_brake_bouc_wen()).
-
-ALPHA_A, ALPHA_B = 1.0, 0.07  # alpha(i) = ALPHA_A + ALPHA_B i   [N·m]
-C0_A, C0_B = 0.0015, 0.07  # C(i) = C0_A + C0_B i               [N·m·s/rad]
-DELTA, BETA, GAMMA, N_EXP = 843.0, 737.0, 1.0, 0.9
 
 
 def check_preset_numbers():
@@ -156,7 +181,16 @@ def check_preset_numbers():
         float(b.gamma),
         float(b.n),
     )
-    want = (ALPHA_A, ALPHA_B, C0_A, C0_B, DELTA, BETA, GAMMA, N_EXP)
+    want = (
+        baselines.ALPHA_A,
+        baselines.ALPHA_B,
+        baselines.C0_A,
+        baselines.C0_B,
+        baselines.DELTA,
+        baselines.BETA,
+        baselines.GAMMA,
+        baselines.N_EXP,
+    )
     if not np.allclose(got, want, rtol=1e-12, atol=1e-15):
         raise SystemExit(f"preset changed: {got} != {want}; update the baselines")
 
@@ -203,6 +237,36 @@ def rel_error(torque, reference):
     return float((np.abs(torque - reference).max(axis=-1) / peak).max())
 
 
+def fewest(candidates, error_of, label):
+    """The first of `candidates` (fewest steps first) whose `error_of` meets the target
+    -> (candidate, {str(candidate): error} of those tried)."""
+    errors = {}
+    for c in candidates:
+        errors[str(c)] = err = error_of(c)
+        print(f"{label} {c}: max error {err:.2e} of peak")
+        if err <= PEAK_ERROR_TARGET:
+            return c, errors
+    raise SystemExit(f"{label}: no candidate met the accuracy target")
+
+
+def method_entry(times, simulated_s, error, compile_s=0.0, **details):
+    """One method's figures from its `interleaved` times: throughput [simulated s per
+    wall s] without and with compilation (`compile_s` [s], 0 where nothing compiles)."""
+    return {
+        "throughput_sim_s_per_s": simulated_s / times["min_s"],
+        "throughput_with_compile_sim_s_per_s": simulated_s
+        / (compile_s + times["min_s"]),
+        "max_torque_error_rel": error,
+        "compile_s": compile_s,
+        "run_s": times["min_s"],
+        "run_s_median": times["median_s"],
+        "run_s_all": times["all_s"],
+        "run_cpu_s": times["cpu_s"],
+        "simulated_s": simulated_s,
+        **details,
+    }
+
+
 def git_state():
     """The checkout measured: commit and the files changed since (others edit too)."""
     root = Path(__file__).resolve().parents[1]
@@ -237,7 +301,7 @@ def device_description():
 
 
 # ---------------------------------------------------------------------------------------
-# Baseline B: a hand-written lax.scan RK4 kernel
+# A hand-written lax.scan RK4 kernel: what jaxmr's fixed-step path costs over bare JAX
 
 
 def make_kernel(ts, substeps, shared=False):
@@ -259,8 +323,12 @@ def make_kernel(ts, substeps, shared=False):
         def rate(z, t):
             v = velocity(t)
             az = jnp.abs(z)
-            p = jnp.where(az > 0, jnp.where(az > 0, az, 1.0) ** N_EXP, 0.0)
-            return DELTA * v - GAMMA * jnp.abs(v) * jnp.sign(z) * p - BETA * v * p
+            p = jnp.where(az > 0, jnp.where(az > 0, az, 1.0) ** baselines.N_EXP, 0.0)
+            return (
+                baselines.DELTA * v
+                - baselines.GAMMA * jnp.abs(v) * jnp.sign(z) * p
+                - baselines.BETA * v * p
+            )
 
         def interval(z, t0):
             def step(k, z):
@@ -279,7 +347,9 @@ def make_kernel(ts, substeps, shared=False):
         return jnp.concatenate([z0[None], zs]), velocity(ts)
 
     def torque(i, zs, v):
-        return (ALPHA_A + ALPHA_B * i) * zs + (C0_A + C0_B * i) * v
+        return (baselines.ALPHA_A + baselines.ALPHA_B * i) * zs + (
+            baselines.C0_A + baselines.C0_B * i
+        ) * v
 
     def one(a, f, i):
         return torque(i, *solve(a, f))
@@ -303,37 +373,6 @@ def no_state_sharing():
         yield
     finally:
         jaxmr._simulate._state_ignores_current = decide
-
-
-# ---------------------------------------------------------------------------------------
-# Baseline A: scipy solve_ivp, one run at a time
-
-
-def scipy_torque(a, f, i, ts, method, rtol):
-    w = 2 * math.pi * f
-    aw = a * w
-
-    def rhs(t, y):
-        z = y[0]
-        v = aw * math.cos(w * t)
-        p = abs(z) ** N_EXP
-        return [DELTA * v - GAMMA * abs(v) * math.copysign(p, z) - BETA * v * p]
-
-    sol = solve_ivp(
-        rhs,
-        (float(ts[0]), float(ts[-1])),
-        [0.0],
-        method=method,
-        t_eval=ts,
-        rtol=rtol,
-        atol=rtol * 1e-2,
-    )
-    if not sol.success:
-        raise RuntimeError(f"solve_ivp {method} rtol={rtol}: {sol.message}")
-    torque = (ALPHA_A + ALPHA_B * i) * sol.y[0] + (C0_A + C0_B * i) * aw * np.cos(
-        w * ts
-    )
-    return torque, sol.nfev
 
 
 # ---------------------------------------------------------------------------------------
@@ -436,6 +475,12 @@ def main():
     if args.processes > 1:
         return process_comparison(args)
     check_preset_numbers()
+    try:
+        import numba  # noqa: F401  (the numba baseline; imported by _sweep_baselines)
+    except ImportError:
+        raise SystemExit(
+            "simulate_sweep.py needs numba for its baseline: pip install -e .[bench]"
+        ) from None
     load_start = os.getloadavg()
     t_start = time.perf_counter()
     brake = jaxmr.sas_brake_bouc_wen()
@@ -444,7 +489,7 @@ def main():
     duration = 2.0 if args.quick else 10.0
     n_times = int(round(duration * 1000)) + 1
     ts = jnp.linspace(0.0, duration, n_times)
-    ts_np = np.asarray(ts)
+    ts_np = np.array(ts)  # a writable copy: numba's signatures take writable arrays
     motion_params, currents, n_amp, n_freq, n_cur = grid(args.runs, duration)
     motions = [jaxmr.Sine(a, f) for a, f in motion_params]
     n_mot = len(motions)
@@ -482,7 +527,7 @@ def main():
     cross = []
     for m, c in ((n_mot - 1, len(ref_currents) - 1), (0, 0)):
         (a, f), i = motion_params[m], ref_currents[c]
-        torque, _ = scipy_torque(a, f, i, ts_np, "DOP853", 1e-12)
+        torque, _ = baselines.scipy_loop_torque(a, f, i, ts_np, "DOP853", 1e-12)
         cross.append(rel_error(torque, t_ref[m, c]))
     reference_crosscheck = max(cross)
 
@@ -494,15 +539,11 @@ def main():
     # --- choose substeps -----------------------------------------------------------------
     substep_errors = {}
     if args.substeps is None:
-        for k in SUBSTEP_CANDIDATES:
-            err = rel_error(fixed(k, ref_currents).force, t_ref)
-            substep_errors[k] = err
-            print(f"FixedStep(substeps={k}): max error {err:.2e} of peak")
-            if err <= PEAK_ERROR_TARGET:
-                break
-        else:
-            raise SystemExit("no substeps candidate met the accuracy target")
-        substeps = k
+        substeps, substep_errors = fewest(
+            SUBSTEP_CANDIDATES,
+            lambda k: rel_error(fixed(k, ref_currents).force, t_ref),
+            "jaxmr FixedStep substeps",
+        )
     else:
         substeps = args.substeps
     dt_step = float(ts[1] - ts[0]) / substeps
@@ -519,7 +560,7 @@ def main():
         errs, nfev = [], 0
         for m, c in scipy_runs:
             (a, f), i = motion_params[m], ref_currents[c]
-            torque, n = scipy_torque(a, f, i, ts_np, method, rtol)
+            torque, n = baselines.scipy_loop_torque(a, f, i, ts_np, method, rtol)
             nfev += n
             errs.append(rel_error(torque, t_ref[m, c]))
         return max(errs), nfev
@@ -544,10 +585,110 @@ def main():
         raise SystemExit("no scipy setting met the accuracy target")
     scipy_best = scipy_tries[-1]
 
-    # --- compile: jaxmr fast mode and the scan kernel (baseline B) -----------------------
+    # Every method below returns the torque of the whole grid; its error is taken on the
+    # reference runs, as jaxmr's.
+    mot_a = np.array([a for a, _ in motion_params])
+    mot_f = np.array([f for _, f in motion_params])
+
+    def grid_error(torque):
+        """Error of a (motions, currents, times) or (runs, times) torque."""
+        torque = np.asarray(torque).reshape(n_mot, n_cur, -1)
+        return rel_error(torque[:, ref_cur_index], t_ref)
+
+    # --- vectorised solve_ivp: the fastest setting of equal accuracy ----------------------
+    def ivp_shared(method, rtol):
+        return baselines.solve_ivp_shared(mot_a, mot_f, currents, ts_np, method, rtol)
+
+    def ivp_runs(method, rtol):
+        return baselines.solve_ivp_runs(run_a, run_f, run_i, ts_np, method, rtol)
+
+    ivp_tries = []
+
+    def ladder(solve, method, rtols, variant):
+        """Tighten rtol until the target is met -> that try, or None."""
+        for rtol in rtols:
+            (torque, nfev), seconds = wall(solve, method, rtol)
+            err = grid_error(torque)
+            del torque
+            ivp_tries.append(
+                {
+                    "variant": variant,
+                    "method": method,
+                    "rtol": rtol,
+                    "atol": rtol * 1e-2,
+                    "max_torque_error_rel": err,
+                    "wall_s": seconds,
+                    "nfev": nfev,
+                }
+            )
+            print(
+                f"vectorised solve_ivp ({variant}) {method} rtol={rtol:g}: error "
+                f"{err:.2e} ({seconds:.1f} s, {nfev} calls)"
+            )
+            if err <= PEAK_ERROR_TARGET:
+                return ivp_tries[-1]
+        return None
+
+    passing = [
+        t
+        for m, rtols in VECTORISED_CANDIDATES.items()
+        if (t := ladder(ivp_shared, m, rtols, "shared")) is not None
+    ]
+    if not passing:
+        raise SystemExit("no vectorised solve_ivp setting met the accuracy target")
+    ivp_best = min(passing, key=lambda t: t["wall_s"])  # the fastest that passes
+    # Without sharing: the same method, from the same rtol (its step follows the batch's
+    # RMS error, which the repeated motions leave about the same).
+    rtols = VECTORISED_CANDIDATES[ivp_best["method"]]
+    ivp_best_ns = ladder(
+        ivp_runs,
+        ivp_best["method"],
+        rtols[rtols.index(ivp_best["rtol"]) :],
+        "no_sharing",
+    )
+    if ivp_best_ns is None:
+        raise SystemExit("no vectorised solve_ivp setting met the target per run")
+
+    # --- NumPy RK4 over the batch: fewest substeps of equal accuracy ----------------------
+    def np_shared(k):
+        return baselines.numpy_rk4_shared(mot_a, mot_f, currents, ts_np, k)
+
+    def np_runs(k):
+        return baselines.numpy_rk4_runs(run_a, run_f, run_i, ts_np, k)
+
+    np_k, np_errors = fewest(
+        SUBSTEP_CANDIDATES, lambda k: grid_error(np_shared(k)), "NumPy RK4 substeps"
+    )
+    np_k_ns, np_errors_ns = fewest(
+        SUBSTEP_CANDIDATES[SUBSTEP_CANDIDATES.index(np_k) :],
+        lambda k: grid_error(np_runs(k)),
+        "NumPy RK4 substeps (no sharing)",
+    )
+
+    # --- numba RK4, parallel over runs: compiled, then fewest substeps --------------------
+    numba_warm_up_s = baselines.numba_warm_up(args.numba_threads)
+    nb_shared, nb_shared_compile_s = baselines.numba_kernel(True, args.numba_threads)
+    nb_runs, nb_runs_compile_s = baselines.numba_kernel(False, args.numba_threads)
+    print(
+        f"numba compile: {nb_shared_compile_s:.2f} s (shared), {nb_runs_compile_s:.2f} "
+        f"s (per run), after {numba_warm_up_s:.2f} s of first use; "
+        f"{args.numba_threads} threads"
+    )
+    nb_k, nb_errors = fewest(
+        SUBSTEP_CANDIDATES,
+        lambda k: grid_error(nb_shared(mot_a, mot_f, currents, ts_np, k)),
+        "numba RK4 substeps",
+    )
+    nb_k_ns, nb_errors_ns = fewest(
+        SUBSTEP_CANDIDATES[SUBSTEP_CANDIDATES.index(nb_k) :],
+        lambda k: grid_error(nb_runs(run_a, run_f, run_i, ts_np, k)),
+        "numba RK4 substeps (no sharing)",
+    )
+
+    # --- compile: jaxmr fast mode and the scan kernels -----------------------------------
     cur_all = jnp.asarray(currents)
 
-    # Like the kernels, the timed sweeps return the torque alone (`keep`); the whole
+    # Like the baselines, the timed sweeps return the torque alone (`keep`); the whole
     # `Solution` (7 arrays per run) is timed beside them.
     def jaxmr_fast(throw=True, keep=("force",)):
         return jaxmr.sweep(
@@ -574,12 +715,13 @@ def main():
     sol, first_s = wall(jaxmr_fast)
     jaxmr_force = np.asarray(sol.force)  # (motions, currents, times)
     del sol
-    err_jaxmr = rel_error(jaxmr_force[:, ref_cur_index], t_ref)
+    err_jaxmr = grid_error(jaxmr_force)
     _, first_nothrow_s = wall(jaxmr_fast, False)
     sol, first_full_s = wall(jaxmr_full)
     full_vs_force_only = float(np.abs(np.asarray(sol.force) - jaxmr_force).max())
     del sol
     sol, first_no_sharing_s = wall(jaxmr_no_sharing)
+    err_jaxmr_ns = grid_error(sol.force)
     no_sharing_vs_shared = float(np.abs(np.asarray(sol.force) - jaxmr_force).max())
     del sol
 
@@ -595,18 +737,19 @@ def main():
     kernel_compile_s = time.perf_counter() - t0
     kernel_torque, kernel_first_s = wall(kernel_compiled, *k_args)
     kernel_torque = np.asarray(kernel_torque).reshape(n_mot, n_cur, -1)
-    err_kernel = rel_error(kernel_torque[:, ref_cur_index], t_ref)
+    err_kernel = grid_error(kernel_torque)
     kernel_vs_jaxmr = float(np.abs(kernel_torque - jaxmr_force).max())
     shared_kernel = make_kernel(ts, substeps, shared=True)
-    m_args = [jnp.asarray([a for a, _ in motion_params])]
-    m_args += [jnp.asarray([f for _, f in motion_params]), cur_all]
+    m_args = [jnp.asarray(mot_a), jnp.asarray(mot_f), cur_all]
     if jax.device_count() > 1 and n_mot % jax.device_count() == 0:
         m_args[:2] = [jax.device_put(x, sharding) for x in m_args[:2]]
     t0 = time.perf_counter()
     shared_kernel_compiled = shared_kernel.lower(*m_args).compile()
     shared_kernel_compile_s = time.perf_counter() - t0
     shared_kernel_torque = np.asarray(shared_kernel_compiled(*m_args))
+    err_shared_kernel = grid_error(shared_kernel_torque)
     shared_kernel_vs_kernel = float(np.abs(shared_kernel_torque - kernel_torque).max())
+    del kernel_torque, shared_kernel_torque
 
     # --- timing: interleaved rounds, so that load from elsewhere hits all alike ----------
     timing = interleaved(
@@ -617,27 +760,294 @@ def main():
             "jaxmr_no_sharing": jaxmr_no_sharing,
             "kernel": lambda: kernel_compiled(*k_args),
             "shared_kernel": lambda: shared_kernel_compiled(*m_args),
-            "scipy": lambda: scipy_loop(scipy_best["method"], scipy_best["rtol"]),
+            "numba": lambda: nb_shared(mot_a, mot_f, currents, ts_np, nb_k),
+            "numba_no_sharing": lambda: nb_runs(run_a, run_f, run_i, ts_np, nb_k_ns),
+            "numpy_rk4": lambda: np_shared(np_k),
+            "numpy_rk4_no_sharing": lambda: np_runs(np_k_ns),
+            "solve_ivp": lambda: ivp_shared(ivp_best["method"], ivp_best["rtol"]),
+            "solve_ivp_no_sharing": lambda: ivp_runs(
+                ivp_best_ns["method"], ivp_best_ns["rtol"]
+            ),
+            "scipy_loop": lambda: scipy_loop(scipy_best["method"], scipy_best["rtol"]),
         },
         args.repeats,
     )
-    run, kernel_run = timing["jaxmr"], timing["kernel"]
-    no_sharing_run, shared_kernel_run = (
-        timing["jaxmr_no_sharing"],
-        timing["shared_kernel"],
-    )
-    # The kernel that does the same work as jaxmr's default path.
-    like_kernel_run = shared_kernel_run if shared_states else kernel_run
-    throughput = sim_seconds / run["min_s"]
-    throughput_no_sharing = sim_seconds / no_sharing_run["min_s"]
-    full_run = timing["jaxmr_full_solution"]
-    throughput_full = sim_seconds / full_run["min_s"]
-    scipy_throughput = len(scipy_runs) * duration / timing["scipy"]["min_s"]
+
+    # --- figures per method ----------------------------------------------------------------
+    def ivp_details(best):
+        return {k: best[k] for k in ("method", "rtol", "atol", "nfev")}
+
+    jaxmr_details = {"substeps": substeps, "step_s": dt_step}
+    methods = {
+        "jaxmr_fixedstep": method_entry(
+            timing["jaxmr"],
+            sim_seconds,
+            err_jaxmr,
+            first_s - timing["jaxmr"]["median_s"],
+            first_call_s=first_s,
+            shares_states=shared_states,
+            **jaxmr_details,
+        ),
+        "jaxmr_fixedstep_throw_false": method_entry(
+            timing["jaxmr_throw_false"],
+            sim_seconds,
+            err_jaxmr,
+            first_nothrow_s - timing["jaxmr_throw_false"]["median_s"],
+            first_call_s=first_nothrow_s,
+            shares_states=shared_states,
+            **jaxmr_details,
+        ),
+        "jaxmr_fixedstep_full_solution": method_entry(
+            timing["jaxmr_full_solution"],
+            sim_seconds,
+            err_jaxmr,
+            first_full_s - timing["jaxmr_full_solution"]["median_s"],
+            first_call_s=first_full_s,
+            shares_states=shared_states,
+            **jaxmr_details,
+        ),
+        "jaxmr_fixedstep_no_sharing": method_entry(
+            timing["jaxmr_no_sharing"],
+            sim_seconds,
+            err_jaxmr_ns,
+            first_no_sharing_s - timing["jaxmr_no_sharing"]["median_s"],
+            first_call_s=first_no_sharing_s,
+            shares_states=False,
+            **jaxmr_details,
+        ),
+        "scan_kernel_shared": method_entry(
+            timing["shared_kernel"],
+            sim_seconds,
+            err_shared_kernel,
+            shared_kernel_compile_s,
+            shares_states=True,
+            substeps=substeps,
+        ),
+        "scan_kernel": method_entry(
+            timing["kernel"],
+            sim_seconds,
+            err_kernel,
+            kernel_compile_s,
+            first_call_s=kernel_first_s,
+            shares_states=False,
+            substeps=substeps,
+        ),
+        "numba": method_entry(
+            timing["numba"],
+            sim_seconds,
+            nb_errors[str(nb_k)],
+            nb_shared_compile_s,
+            shares_states=True,
+            substeps=nb_k,
+            threads=args.numba_threads,
+        ),
+        "numba_no_sharing": method_entry(
+            timing["numba_no_sharing"],
+            sim_seconds,
+            nb_errors_ns[str(nb_k_ns)],
+            nb_runs_compile_s,
+            shares_states=False,
+            substeps=nb_k_ns,
+            threads=args.numba_threads,
+        ),
+        "numpy_rk4": method_entry(
+            timing["numpy_rk4"],
+            sim_seconds,
+            np_errors[str(np_k)],
+            shares_states=True,
+            substeps=np_k,
+        ),
+        "numpy_rk4_no_sharing": method_entry(
+            timing["numpy_rk4_no_sharing"],
+            sim_seconds,
+            np_errors_ns[str(np_k_ns)],
+            shares_states=False,
+            substeps=np_k_ns,
+        ),
+        "solve_ivp_vectorised": method_entry(
+            timing["solve_ivp"],
+            sim_seconds,
+            ivp_best["max_torque_error_rel"],
+            shares_states=True,
+            **ivp_details(ivp_best),
+        ),
+        "solve_ivp_vectorised_no_sharing": method_entry(
+            timing["solve_ivp_no_sharing"],
+            sim_seconds,
+            ivp_best_ns["max_torque_error_rel"],
+            shares_states=False,
+            **ivp_details(ivp_best_ns),
+        ),
+        # Timed on a few runs (`runs_timed`), extrapolated per simulated second.
+        "scipy_loop": method_entry(
+            timing["scipy_loop"],
+            len(scipy_runs) * duration,
+            scipy_best["max_torque_error_rel"],
+            shares_states=False,
+            method=scipy_best["method"],
+            rtol=scipy_best["rtol"],
+            atol=scipy_best["atol"],
+            runs_timed=len(scipy_runs),
+        ),
+    }
+    # jaxmr's default path against the baselines doing the same work: their shared forms
+    # where jaxmr shares the states.
+    same = "" if shared_states else "_no_sharing"
+
+    def speedup(jaxmr_name, baseline, with_compile=False):
+        key = (
+            "throughput_with_compile_sim_s_per_s"
+            if with_compile
+            else "throughput_sim_s_per_s"
+        )
+        return methods[jaxmr_name][key] / methods[baseline][key]
+
+    def fastest(*names):
+        return max(names, key=lambda n: methods[n]["throughput_sim_s_per_s"])
+
+    vectorised = fastest(f"numpy_rk4{same}", f"solve_ivp_vectorised{same}")
+    vectorised_ns = fastest("numpy_rk4_no_sharing", "solve_ivp_vectorised_no_sharing")
+    default, no_sharing = "jaxmr_fixedstep", "jaxmr_fixedstep_no_sharing"
+    headline = {
+        "speedup_vs_scipy_vectorised": speedup(default, vectorised),
+        "speedup_vs_numba": speedup(default, f"numba{same}"),
+        "speedup_vs_scipy_vectorised_with_compile": speedup(default, vectorised, True),
+        "speedup_vs_numba_with_compile": speedup(default, f"numba{same}", True),
+        "speedup_vs_scipy_vectorised_no_sharing": speedup(no_sharing, vectorised_ns),
+        "speedup_vs_numba_no_sharing": speedup(no_sharing, "numba_no_sharing"),
+        "speedup_vs_scipy_vectorised_no_sharing_with_compile": speedup(
+            no_sharing, vectorised_ns, True
+        ),
+        "speedup_vs_numba_no_sharing_with_compile": speedup(
+            no_sharing, "numba_no_sharing", True
+        ),
+        "scipy_vectorised_baseline": vectorised,
+        "scipy_vectorised_baseline_no_sharing": vectorised_ns,
+        "speedup_vs_solve_ivp_vectorised": speedup(
+            default, f"solve_ivp_vectorised{same}"
+        ),
+        "speedup_vs_numpy_rk4": speedup(default, f"numpy_rk4{same}"),
+        "speedup_vs_solve_ivp_vectorised_no_sharing": speedup(
+            no_sharing, "solve_ivp_vectorised_no_sharing"
+        ),
+        "speedup_vs_numpy_rk4_no_sharing": speedup(no_sharing, "numpy_rk4_no_sharing"),
+        # CPU time: XLA and numba use every core, NumPy one.
+        "speedup_vs_scipy_vectorised_cpu_time": methods[vectorised]["run_cpu_s"]
+        / methods[default]["run_cpu_s"],
+        "speedup_vs_numba_cpu_time": methods[f"numba{same}"]["run_cpu_s"]
+        / methods[default]["run_cpu_s"],
+        # The old baseline, one run at a time with a Python right-hand side.
+        "speedup_vs_scipy_loop": speedup(default, "scipy_loop"),
+        "speedup_vs_scipy_loop_no_sharing": speedup(no_sharing, "scipy_loop"),
+    }
+    kernel_like = f"scan_kernel{'_shared' if shared_states else ''}"
+    results = {
+        "benchmark": "simulate_sweep",
+        "date": datetime.datetime.now().astimezone().isoformat(timespec="seconds"),
+        "model": "jaxmr.sas_brake_bouc_wen()",
+        "runs": args.runs,
+        "quick": args.quick,
+        **headline,
+        "all_within_target": all(
+            m["max_torque_error_rel"] <= PEAK_ERROR_TARGET for m in methods.values()
+        ),
+        "throughput_sim_s_per_s": methods[default]["throughput_sim_s_per_s"],
+        "throughput_sim_s_per_s_no_sharing": methods[no_sharing][
+            "throughput_sim_s_per_s"
+        ],
+        "throughput_sim_s_per_s_by_method": {
+            k: m["throughput_sim_s_per_s"] for k, m in methods.items()
+        },
+        "max_torque_error_rel_by_method": {
+            k: m["max_torque_error_rel"] for k, m in methods.items()
+        },
+        "time_ratio_vs_scan_kernel": methods[default]["run_s"]
+        / methods[kernel_like]["run_s"],
+        "cpu_time_ratio_vs_scan_kernel": methods[default]["run_cpu_s"]
+        / methods[kernel_like]["run_cpu_s"],
+        "time_ratio_vs_scan_kernel_no_sharing": methods[no_sharing]["run_s"]
+        / methods["scan_kernel"]["run_s"],
+        "time_ratio_vs_scan_kernel_full_solution": methods[
+            "jaxmr_fixedstep_full_solution"
+        ]["run_s"]
+        / methods[kernel_like]["run_s"],
+        "substeps": substeps,
+        "step_s": dt_step,
+        "shared_states": shared_states,
+        "numba_threads": args.numba_threads,
+        # numba's one-time costs in the process (a trivial parallel function compiled
+        # and run first), not counted in its kernels' compile_s: JAX's fall on the
+        # reference and substep search the same way.
+        "numba_first_use_s": numba_warm_up_s,
+        "methods": methods,
+        "grid": {
+            "currents_A": currents.tolist(),
+            "amplitudes_deg": sorted(
+                {round(float(np.rad2deg(a)), 12) for a, _ in motion_params}
+            ),
+            "frequencies_Hz": sorted({float(f) for _, f in motion_params}),
+            "order": "motion-major (amplitude, frequency), current inner",
+            "duration_s": duration,
+            "output_rate_Hz": 1000,
+            "samples_per_run": n_times,
+            "simulated_seconds": sim_seconds,
+        },
+        "accuracy": {
+            "target_max_torque_error_rel": PEAK_ERROR_TARGET,
+            "definition": "max over runs of max_t|T - T_ref| / max_t|T_ref|",
+            "reference": "Adaptive(Dopri8, rtol=1e-10, atol=1e-12)",
+            "reference_runs": "all runs"
+            if args.full_reference
+            else "every motion at the lowest and highest current "
+            "(z does not depend on the current in this preset)",
+            "reference_num_runs": int(t_ref.shape[0] * t_ref.shape[1]),
+            "reference_wall_s": ref_s,
+            "reference_vs_scipy_DOP853_rtol1e-12": reference_crosscheck,
+            "substep_search": {
+                "jaxmr_fixedstep": substep_errors,
+                "numpy_rk4": np_errors,
+                "numpy_rk4_no_sharing": np_errors_ns,
+                "numba": nb_errors,
+                "numba_no_sharing": nb_errors_ns,
+            },
+            "solve_ivp_vectorised_tried": ivp_tries,
+            "scipy_loop_tried": scipy_tries,
+            "scan_kernel_vs_jaxmr_abs_Nm": kernel_vs_jaxmr,
+            "jaxmr_no_sharing_vs_shared_abs_Nm": no_sharing_vs_shared,
+            "jaxmr_full_solution_vs_force_only_abs_Nm": full_vs_force_only,
+            "shared_scan_kernel_vs_scan_kernel_abs_Nm": shared_kernel_vs_kernel,
+        },
+        "timing": f"run times are the min of {args.repeats} calls after the first "
+        "(compile) call, timed in interleaved rounds (every method once per round; then "
+        "the batching configurations), jax outputs with block_until_ready; "
+        "throughput = simulated s / run s; with compile = simulated s / (compile s + "
+        "run s), compile s = first call - median run for jaxmr, lower().compile() for "
+        "the scan kernels, the eager compilation from the signature for numba, 0 for "
+        "NumPy/SciPy; speedup_vs_X = throughput ratio, the headline ones jaxmr's default "
+        "(shared-state when `shared_states`) path against X's same form, *_no_sharing "
+        "one solve per run on both sides; every method returns the torque of every run "
+        "(jaxmr: keep=('force',); *_full_solution: the whole Solution); scipy_loop is "
+        "timed on `runs_timed` runs and extrapolated per simulated second",
+        "versions": {
+            "jax": jax.__version__,
+            "jaxlib": __import__("jaxlib").__version__,
+            "diffrax": __import__("diffrax").__version__,
+            "equinox": __import__("equinox").__version__,
+            "scipy": scipy.__version__,
+            "numpy": np.__version__,
+            "numba": __import__("numba").__version__,
+            "jaxmr": jaxmr.__version__,
+        },
+        "device": device_description(),
+        "git": git_state(),
+        "host_devices": args.host_devices,
+        "loadavg_start": load_start,
+    }
     print(
-        f"jaxmr FixedStep({substeps}): first call {first_s:.2f} s, run "
-        f"{run['min_s']:.2f} s -> {throughput:.0f} sim s/s; scan kernel: compile "
-        f"{kernel_compile_s:.2f} s, run {kernel_run['min_s']:.2f} s; scipy "
-        f"{scipy_throughput:.1f} sim s/s"
+        f"jaxmr FixedStep({substeps}): "
+        f"{results['throughput_sim_s_per_s']:.0f} sim s/s; numba "
+        f"{methods[f'numba{same}']['throughput_sim_s_per_s']:.0f}; vectorised "
+        f"{vectorised} {methods[vectorised]['throughput_sim_s_per_s']:.0f}"
     )
 
     # --- adaptive default: vmap vs map, and fixed-step map, on the reference subset -------
@@ -699,212 +1109,49 @@ def main():
         for k, e in entries.items()
         if e["integrator"] == "Adaptive"
     }
-    results = {
-        "benchmark": "simulate_sweep",
-        "date": datetime.datetime.now().astimezone().isoformat(timespec="seconds"),
-        "model": "jaxmr.sas_brake_bouc_wen()",
-        "runs": args.runs,
-        "quick": args.quick,
-        "grid": {
-            "currents_A": currents.tolist(),
-            "amplitudes_deg": sorted(
-                {round(float(np.rad2deg(a)), 12) for a, _ in motion_params}
-            ),
-            "frequencies_Hz": sorted({float(f) for _, f in motion_params}),
-            "order": "motion-major (amplitude, frequency), current inner",
-            "duration_s": duration,
-            "output_rate_Hz": 1000,
-            "samples_per_run": n_times,
-            "simulated_seconds": sim_seconds,
+    results["adaptive_batching"] = {
+        "subset_runs": n_sub,
+        "throughput_sim_s_per_s": {
+            k: v["throughput_sim_s_per_s"] for k, v in adaptive.items()
         },
-        "accuracy": {
-            "target_max_torque_error_rel": PEAK_ERROR_TARGET,
-            "definition": "max over runs of max_t|T - T_ref| / max_t|T_ref|",
-            "reference": "Adaptive(Dopri8, rtol=1e-10, atol=1e-12)",
-            "reference_runs": "all runs"
-            if args.full_reference
-            else "every motion at the lowest and highest current "
-            "(z does not depend on the current in this preset)",
-            "reference_num_runs": int(t_ref.shape[0] * t_ref.shape[1]),
-            "reference_wall_s": ref_s,
-            "reference_vs_scipy_DOP853_rtol1e-12": reference_crosscheck,
-            "substep_search": {str(k): v for k, v in substep_errors.items()},
-        },
-        "substeps": substeps,
-        "step_s": dt_step,
-        "throughput_sim_s_per_s": throughput,
-        "shared_states": shared_states,
-        "speedup_vs_scipy": throughput / scipy_throughput,
-        "speedup_vs_scipy_no_sharing": throughput_no_sharing / scipy_throughput,
-        "speedup_vs_scipy_full_solution": throughput_full / scipy_throughput,
-        "throughput_sim_s_per_s_no_sharing": throughput_no_sharing,
-        "shared_scan_kernel_speedup_vs_scipy": sim_seconds
-        / shared_kernel_run["min_s"]
-        / scipy_throughput,
-        "scan_kernel_speedup_vs_scipy": sim_seconds
-        / kernel_run["min_s"]
-        / scipy_throughput,
-        "speedup_vs_scipy_cpu_time": (
-            timing["scipy"]["cpu_s"] / (len(scipy_runs) * duration)
-        )
-        / (run["cpu_s"] / sim_seconds),
-        "time_ratio_vs_scan_kernel": run["min_s"] / like_kernel_run["min_s"],
-        "cpu_time_ratio_vs_scan_kernel": run["cpu_s"] / like_kernel_run["cpu_s"],
-        "time_ratio_vs_scan_kernel_no_sharing": no_sharing_run["min_s"]
-        / kernel_run["min_s"],
-        "time_ratio_vs_scan_kernel_full_solution": full_run["min_s"]
-        / like_kernel_run["min_s"],
-        "max_torque_error_rel": {
-            "jaxmr_fixedstep": err_jaxmr,
-            "scipy": scipy_best["max_torque_error_rel"],
-            "scan_kernel": err_kernel,
-            "jaxmr_adaptive_default_subset": entries["Adaptive_map_bsNone"][
-                "max_torque_error_rel"
-            ],
-            "scan_kernel_vs_jaxmr_abs_Nm": kernel_vs_jaxmr,
-            "jaxmr_no_sharing_vs_shared_abs_Nm": no_sharing_vs_shared,
-            "jaxmr_full_solution_vs_force_only_abs_Nm": full_vs_force_only,
-            "shared_scan_kernel_vs_scan_kernel_abs_Nm": shared_kernel_vs_kernel,
-        },
-        "jaxmr_fixedstep": {
-            "first_call_s": first_s,
-            "compile_s": first_s - run["median_s"],
-            "run_s": run["min_s"],
-            "run_s_median": run["median_s"],
-            "run_s_all": run["all_s"],
-            "run_cpu_s": run["cpu_s"],
-            "run_s_throw_false": timing["jaxmr_throw_false"]["min_s"],
-        },
-        "jaxmr_fixedstep_full_solution": {
-            "first_call_s": first_full_s,
-            "compile_s": first_full_s - full_run["median_s"],
-            "run_s": full_run["min_s"],
-            "run_s_all": full_run["all_s"],
-            "run_cpu_s": full_run["cpu_s"],
-            "throughput_sim_s_per_s": throughput_full,
-        },
-        "jaxmr_fixedstep_no_sharing": {
-            "first_call_s": first_no_sharing_s,
-            "compile_s": first_no_sharing_s - no_sharing_run["median_s"],
-            "run_s": no_sharing_run["min_s"],
-            "run_s_all": no_sharing_run["all_s"],
-            "run_cpu_s": no_sharing_run["cpu_s"],
-        },
-        "scan_kernel": {
-            "compile_s": kernel_compile_s,
-            "first_call_s": kernel_first_s,
-            "run_s": kernel_run["min_s"],
-            "run_s_median": kernel_run["median_s"],
-            "run_s_all": kernel_run["all_s"],
-            "run_cpu_s": kernel_run["cpu_s"],
-            "throughput_sim_s_per_s": sim_seconds / kernel_run["min_s"],
-        },
-        "shared_scan_kernel": {
-            "compile_s": shared_kernel_compile_s,
-            "run_s": shared_kernel_run["min_s"],
-            "run_s_all": shared_kernel_run["all_s"],
-            "run_cpu_s": shared_kernel_run["cpu_s"],
-            "throughput_sim_s_per_s": sim_seconds / shared_kernel_run["min_s"],
-        },
-        "scipy": {
-            "method": scipy_best["method"],
-            "rtol": scipy_best["rtol"],
-            "atol": scipy_best["atol"],
-            "runs_timed": len(scipy_runs),
-            "wall_s": timing["scipy"]["min_s"],
-            "wall_s_all": timing["scipy"]["all_s"],
-            "cpu_s": timing["scipy"]["cpu_s"],
-            "throughput_sim_s_per_s": scipy_throughput,
-            "extrapolated_wall_s_for_all_runs": sim_seconds / scipy_throughput,
-            "tried": scipy_tries,
-        },
-        "adaptive_batching": {
-            "subset_runs": n_sub,
-            "throughput_sim_s_per_s": {
-                k: v["throughput_sim_s_per_s"] for k, v in adaptive.items()
-            },
-        },
-        "batching_details": batching_results,
-        "timing": f"run times are the min of {args.repeats} calls after the first "
-        "(compile) call, each with block_until_ready, timed in interleaved rounds "
-        "(jaxmr, jaxmr throw=False, jaxmr full Solution, jaxmr without state "
-        "sharing, kernel, shared kernel, scipy; then the batching configurations); "
-        "compile_s = first call - median run; the jaxmr figures use the shared-state "
-        "path when `shared_states` (z solved once per motion), the *_no_sharing ones "
-        "one solve per run; they keep the torque alone (keep=('force',)), as the "
-        "kernels do, the *_full_solution ones the whole Solution",
-        "versions": {
-            "jax": jax.__version__,
-            "jaxlib": __import__("jaxlib").__version__,
-            "diffrax": __import__("diffrax").__version__,
-            "equinox": __import__("equinox").__version__,
-            "scipy": scipy.__version__,
-            "numpy": np.__version__,
-            "jaxmr": jaxmr.__version__,
-        },
-        "device": device_description(),
-        "git": git_state(),
-        "host_devices": args.host_devices,
-        "loadavg_start": load_start,
-        "loadavg_end": os.getloadavg(),
-        "total_wall_s": time.perf_counter() - t_start,
+        "max_torque_error_rel_default": adaptive["map_bsNone"]["max_torque_error_rel"],
     }
+    results["batching_details"] = batching_results
+    results["loadavg_end"] = os.getloadavg()
+    results["total_wall_s"] = time.perf_counter() - t_start
     out = Path(args.json)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(results, indent=2) + "\n")
+    write_figures(results, out)
 
     # --- summary -------------------------------------------------------------------------
+    labels = {
+        "jaxmr_fixedstep": f"jaxmr sweep FixedStep({substeps})"
+        + (", shared z" if shared_states else ""),
+        "jaxmr_fixedstep_throw_false": f"jaxmr sweep FixedStep({substeps}), throw=False",
+        "jaxmr_fixedstep_full_solution": f"jaxmr sweep FixedStep({substeps}), Solution",
+        "jaxmr_fixedstep_no_sharing": f"jaxmr sweep FixedStep({substeps}), per run",
+        "scan_kernel_shared": "lax.scan RK4 kernel, shared z",
+        "scan_kernel": "lax.scan RK4 kernel, per run",
+        "numba": f"numba RK4({nb_k}), shared z",
+        "numba_no_sharing": f"numba RK4({nb_k_ns}), per run",
+        "numpy_rk4": f"NumPy RK4({np_k}) over the batch, shared z",
+        "numpy_rk4_no_sharing": f"NumPy RK4({np_k_ns}) over the batch, per run",
+        "solve_ivp_vectorised": f"solve_ivp {ivp_best['method']} "
+        f"rtol={ivp_best['rtol']:g} over the batch, shared z",
+        "solve_ivp_vectorised_no_sharing": f"solve_ivp {ivp_best_ns['method']} "
+        f"rtol={ivp_best_ns['rtol']:g} over the batch, per run",
+        "scipy_loop": f"solve_ivp {scipy_best['method']} rtol={scipy_best['rtol']:g} "
+        f"loop ({len(scipy_runs)} runs)",
+    }
     rows = [
         (
-            f"jaxmr sweep FixedStep({substeps})"
-            + (" shared z" if shared_states else ""),
-            first_s - run["median_s"],
-            run["min_s"],
-            run["cpu_s"],
-            throughput,
-            err_jaxmr,
-        ),
-        (
-            f"jaxmr sweep FixedStep({substeps}), whole Solution",
-            first_full_s - full_run["median_s"],
-            full_run["min_s"],
-            full_run["cpu_s"],
-            throughput_full,
-            err_jaxmr,
-        ),
-        (
-            f"jaxmr sweep FixedStep({substeps}) no sharing",
-            first_no_sharing_s - no_sharing_run["median_s"],
-            no_sharing_run["min_s"],
-            no_sharing_run["cpu_s"],
-            throughput_no_sharing,
-            err_jaxmr,
-        ),
-        (
-            "lax.scan RK4 kernel",
-            kernel_compile_s,
-            kernel_run["min_s"],
-            kernel_run["cpu_s"],
-            sim_seconds / kernel_run["min_s"],
-            err_kernel,
-        ),
-        (
-            "lax.scan RK4 kernel, shared z",
-            shared_kernel_compile_s,
-            shared_kernel_run["min_s"],
-            shared_kernel_run["cpu_s"],
-            sim_seconds / shared_kernel_run["min_s"],
-            err_kernel,
-        ),
-        (
-            f"scipy {scipy_best['method']} rtol={scipy_best['rtol']:g} "
-            f"({len(scipy_runs)} runs)",
-            0.0,
-            timing["scipy"]["min_s"],
-            timing["scipy"]["cpu_s"],
-            scipy_throughput,
-            scipy_best["max_torque_error_rel"],
-        ),
+            labels[k],
+            m["compile_s"],
+            m["run_s"],
+            m["run_cpu_s"],
+            m["throughput_sim_s_per_s"],
+            m["max_torque_error_rel"],
+        )
+        for k, m in methods.items()
     ]
     rows += [
         (
@@ -919,30 +1166,43 @@ def main():
     ]
     print()
     print(
-        f"{'mode':<42}{'compile s':>10}{'run s':>8}{'cpu s':>8}{'sim s/s':>9}"
+        f"{'mode':<52}{'compile s':>10}{'run s':>8}{'cpu s':>8}{'sim s/s':>9}"
         f"{'err/peak':>10}"
     )
     for name, comp, r, cpu, thr, err in rows:
-        print(f"{name:<42}{comp:>10.2f}{r:>8.2f}{cpu:>8.2f}{thr:>9.0f}{err:>10.1e}")
+        print(f"{name:<52}{comp:>10.2f}{r:>8.2f}{cpu:>8.2f}{thr:>9.0f}{err:>10.1e}")
     print()
+    r = results
     print(
-        f"speedup_vs_scipy          {results['speedup_vs_scipy']:.0f}  (goal >= 250; "
-        f"shared z: {shared_states}; without sharing "
-        f"{results['speedup_vs_scipy_no_sharing']:.0f}; whole Solution "
-        f"{results['speedup_vs_scipy_full_solution']:.0f}; scan kernel "
-        f"{results['scan_kernel_speedup_vs_scipy']:.0f}, shared z "
-        f"{results['shared_scan_kernel_speedup_vs_scipy']:.0f}; in CPU time "
-        f"{results['speedup_vs_scipy_cpu_time']:.0f})"
+        f"speedup_vs_scipy_vectorised {r['speedup_vs_scipy_vectorised']:.1f} (goal >= "
+        f"10; against {vectorised}; with compile "
+        f"{r['speedup_vs_scipy_vectorised_with_compile']:.1f}; without sharing "
+        f"{r['speedup_vs_scipy_vectorised_no_sharing']:.1f}, with compile "
+        f"{r['speedup_vs_scipy_vectorised_no_sharing_with_compile']:.1f})"
     )
     print(
-        f"time_ratio_vs_scan_kernel {results['time_ratio_vs_scan_kernel']:.2f} "
+        f"speedup_vs_numba            {r['speedup_vs_numba']:.2f} (goal >= 1; with "
+        f"compile {r['speedup_vs_numba_with_compile']:.2f}; without sharing "
+        f"{r['speedup_vs_numba_no_sharing']:.2f}, with compile "
+        f"{r['speedup_vs_numba_no_sharing_with_compile']:.2f})"
+    )
+    print(
+        f"speedup_vs_scipy_loop       {r['speedup_vs_scipy_loop']:.0f} (one run at a "
+        f"time, Python right-hand side; without sharing "
+        f"{r['speedup_vs_scipy_loop_no_sharing']:.0f})"
+    )
+    print(
+        f"time_ratio_vs_scan_kernel   {r['time_ratio_vs_scan_kernel']:.2f} "
         f"(goal <= 2, against the kernel doing the same work; CPU time ratio "
-        f"{results['cpu_time_ratio_vs_scan_kernel']:.2f}; without sharing "
-        f"{results['time_ratio_vs_scan_kernel_no_sharing']:.2f}; whole Solution "
-        f"{results['time_ratio_vs_scan_kernel_full_solution']:.2f})"
+        f"{r['cpu_time_ratio_vs_scan_kernel']:.2f}; without sharing "
+        f"{r['time_ratio_vs_scan_kernel_no_sharing']:.2f}; whole Solution "
+        f"{r['time_ratio_vs_scan_kernel_full_solution']:.2f})"
     )
-    print(f"reference vs scipy DOP853 rtol 1e-12: {reference_crosscheck:.1e} of peak")
-    print(f"load average {load_start} -> {results['loadavg_end']}; wrote {out}")
+    print(
+        f"every method within {PEAK_ERROR_TARGET:g} of peak: {r['all_within_target']}; "
+        f"reference vs scipy DOP853 rtol 1e-12: {reference_crosscheck:.1e} of peak"
+    )
+    print(f"load average {load_start} -> {r['loadavg_end']}; wrote {out}")
 
 
 if __name__ == "__main__":
