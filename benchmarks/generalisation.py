@@ -61,6 +61,7 @@ from jaxmr import fit, record_nrmse  # noqa: E402
 from jaxmr._identify.select import (  # noqa: E402
     MIN_FINALISTS,
     SCREEN_STEPS,
+    _complexity as _select_complexity,
     holdout_split,
     screening_end,
     select_model,
@@ -157,12 +158,24 @@ def run_auto(d, max_steps) -> dict:
                 "stage": s.stage,
                 "seconds": s.fit_time,
                 "inner_held_out_median_nrmse": s.median_test_nrmse,
+                # Per held-out record, pooled over the folds (the rule's input).
+                "inner_held_out_nrmse": [float(v) for v in s.test_nrmse],
                 "error": s.error,
             }
             for s in selection.scores
         ],
         "holdout": selection.holdout,
     }
+    decision = selection.parsimony
+    if decision is not None:  # the rule's inputs, to replay it with other tolerances
+        out["parsimony"] = {
+            "best": decision.best,
+            "chosen": decision.chosen,
+            "names": list(decision.names),
+            "mean_nrmse": list(decision.mean_nrmse),
+            "standard_error": list(decision.standard_error),
+            "num_records": decision.num_records,
+        }
     print(
         f"  auto: {selection.name} {out['held_out_median_nrmse']:.4f} "
         f"({seconds:.1f} s)",
@@ -470,6 +483,98 @@ def analyse(results: dict) -> dict:
     }
 
 
+# The parsimony rules replayed on `select_model`'s pooled inner held-out errors: the
+# statistic of a finalist's per-record NRMSEs ("mean"; "log": the mean log, i.e. the
+# geometric mean, so that one badly fitted record weighs as a ratio; "median") and
+# the tolerance, in standard errors of the paired per-record difference from the best
+# (`select_model` today: "mean", 1).
+STATISTICS = ("mean", "log", "median")
+TOLERANCES = (0.0, 0.25, 0.5, 1.0, 2.0)
+
+
+def replay_parsimony(auto: dict, statistic: str, tolerance: float) -> str | None:
+    """The finalist `select_model` would choose with another statistic and
+    tolerance: the simplest (the library's parsimony order) whose statistic is within
+    `tolerance` standard errors of the best one's. From the finalists' per-record
+    inner held-out errors that `run_auto` saved, so no fit is repeated. ("median"
+    has no standard error here: it takes the best.)"""
+    finalists = [
+        r
+        for r in auto["ranking"]
+        if r["stage"] == "full" and r.get("inner_held_out_nrmse")
+    ]
+    if not finalists:
+        return None
+    names = [r["name"] for r in finalists]
+    errors = np.array([r["inner_held_out_nrmse"] for r in finalists], float)
+    errors = np.where(np.isfinite(errors), errors, np.inf)
+    finite = np.all(np.isfinite(errors), axis=1)
+    if not finite.any():
+        return None
+    values = np.log(np.maximum(errors, 1e-12)) if statistic == "log" else errors
+    stat = np.median if statistic == "median" else np.mean
+    scores = np.array([stat(v) if f else np.inf for v, f in zip(values, finite)])
+    best = int(np.argmin(scores))
+    n = errors.shape[1]
+    order = sorted(range(len(names)), key=lambda k: _select_complexity(names[k]))
+    for k in order:
+        if not finite[k]:
+            continue
+        d = values[k] - values[best]
+        se = 0.0 if statistic == "median" or n < 2 else np.std(d, ddof=1) / np.sqrt(n)
+        if scores[k] - scores[best] <= tolerance * se:
+            return names[k]
+    return names[best]
+
+
+def tolerance_analysis(results: dict) -> dict:
+    """Leave-one-dataset-out over the parsimony rule (statistic, tolerance): for each
+    dataset left out, the rule with the lowest (max, then median) regret on the
+    others, and the regret its choice gets on the left-out dataset. A choice's
+    regret is that of its plain fit (its template fitted on the training records
+    with the defaults: the fit auto also runs, and keeps when its loss is lower)."""
+    names = [
+        n
+        for n, r in results.items()
+        if any(x.get("inner_held_out_nrmse") for x in r["auto"]["ranking"])
+    ]
+    if len(names) < 2:
+        return {}
+    rules = [(s, t) for s in STATISTICS for t in TOLERANCES if s != "median" or t == 0]
+    table = {}
+    for rule in rules:
+        row = {}
+        for n in names:
+            chosen = replay_parsimony(results[n]["auto"], *rule)
+            row[n] = {
+                "choice": chosen,
+                "regret": np.inf
+                if chosen is None or chosen not in results[n]["plain"]
+                else regret_of(results[n], chosen),
+            }
+        table[rule] = row
+
+    def merit(rule, among):
+        r = [table[rule][n]["regret"] for n in among]
+        # Ties: the larger tolerance (the simpler model), then the order above.
+        return (max(r), float(np.median(r)), -rule[1], rules.index(rule))
+
+    lodo = {}
+    for left in names:
+        others = [n for n in names if n != left]
+        rule = min(rules, key=lambda r: merit(r, others))
+        lodo[left] = {"statistic": rule[0], "tolerance": rule[1], **table[rule][left]}
+    regrets = [v["regret"] for v in lodo.values()]
+    best = min(rules, key=lambda r: merit(r, names))
+    return {
+        "table": {f"{s} {t:g}": row for (s, t), row in table.items()},
+        "leave_one_dataset_out": lodo,
+        "lodo_max_regret": max(regrets),
+        "lodo_median_regret": float(np.median(regrets)),
+        "rule_on_all": {"statistic": best[0], "tolerance": best[1]},
+    }
+
+
 def _rule_dict(rule) -> dict:
     candidates, scheme, statistic, parsimony, finalists = rule
     return {
@@ -502,6 +607,7 @@ def _finish(figures: dict) -> dict:
         for n, r in results.items()
     }
     figures["analysis"] = analyse(results)
+    figures["parsimony_tolerance"] = tolerance_analysis(results)
     return figures
 
 
