@@ -37,8 +37,14 @@ The test outputs are scored outside the project. The script reports e_RMS of eac
 prediction against the true model's simulation of the same input (which reproduces the
 official multisine output to ~1e-7 m, SYSTEMS.md §4), and against `--test-output`
 if one is given (.npy or .mat). Alternatives timed in the same run: the linear model,
-and `scipy.optimize.least_squares` (trf, 2-point finite differences) on the same
-jitted residual from the same start (`--no-scipy` to skip).
+and `scipy.optimize.least_squares` on the same jitted residual from the same start
+(`against_scipy`; `--no-scipy` to skip): "trf" and "lm", each with 2-point finite
+differences and with the exact Jacobian (a jitted `jax.jacfwd` of that residual), at
+equal accuracy (each to `fit_system`'s final loss × (1 + 1e-3), or for at most
+`--budget-factor` × its time), each fit in a fresh process with its compilation
+measured (`_fit_baselines.py`): `speedup_vs_scipy_fd` and
+`speedup_vs_scipy_exact_jacobian` (the fastest of each kind over `fit_system`,
+compilation included) and their `_excluding_compile`.
 """
 
 import argparse
@@ -66,7 +72,6 @@ import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 import optimistix as optx  # noqa: E402
 import scipy.io  # noqa: E402
-import scipy.optimize  # noqa: E402
 
 from jaxmr._identify.system import (  # noqa: E402
     SystemRecord,
@@ -218,35 +223,65 @@ def relative_errors(values: dict) -> dict:
     return {k: values[k] / TRUE[k] - 1 for k in TRUE}
 
 
-def run_fit(start, record, substeps, solver):
-    stamps = []
-    t0 = time.perf_counter()
-    result = fit_system(
-        start,
-        record,
-        substeps=substeps,
-        solver=solver,
-        progress=lambda step, loss: stamps.append((time.perf_counter() - t0, loss)),
+def training_record(train, periods: int, substeps: int):
+    """The record `fit_system` fits (the training record's first `periods` periods,
+    from rest) and the fit's start (from the linear model)."""
+    m, c, k = linear_fit(train.u, train.y)
+    n = periods * PERIOD
+    record = SystemRecord(
+        train.t[:n],
+        train.y[:n],
+        excitation(train.u[:PERIOD], "multisine", substeps, periods),
+        name=f"train, periods 1-{periods}",
     )
-    total = time.perf_counter() - t0
-    # The first step includes compiling the residual, its Jacobian and the LM step;
-    # the later steps are runs only.
-    step_times = np.diff([s for s, _ in stamps])
-    per_step = float(np.median(step_times)) if step_times.size else float("nan")
-    return result, {
-        "total_s": total,
-        "first_step_s": stamps[0][0],
-        "compile_s_estimate": stamps[0][0] - per_step,
-        "median_step_s": per_step,
+    return record, start_system(m, c, k)
+
+
+def with_values(start, values: dict):
+    """The start's system, unconstrained, with the free parameters' `values`."""
+    from jaxmr._parameter import unwrap
+
+    return eqx.tree_at(
+        lambda s: tuple(f(s) for f in FREE.values()),
+        unwrap(start),
+        tuple(jnp.asarray(values[name], dtype=float) for name in FREE),
+    )
+
+
+def jaxmr_fit(train, periods: int, substeps: int, solver: str) -> dict:
+    """`fit_system` from the start, in a fresh process (`_fit_baselines`): its time
+    to the target of the equal-accuracy rule (its own final loss × (1 + 1e-3)) and in
+    all, the compilation within each, and the fit."""
+    from _fit_baselines import TARGET, CompileClock, LossTrace, cold_jax, timed_figures
+
+    cold_jax()
+    record, start = training_record(train, periods, substeps)
+    # "lm": optimistix's LevenbergMarquardt, fit_system's alternative to its default.
+    lm = None if solver == "fast" else optx.LevenbergMarquardt(rtol=1e-8, atol=1e-10)
+    with CompileClock() as clock:
+        started = time.time()
+        trace = LossTrace(started)
+        result = fit_system(
+            start,
+            record,
+            substeps=substeps,
+            solver=lm,
+            progress=lambda step, loss: trace.add(loss),
+        )
+        total = time.time() - started
+    print(result, flush=True)
+    values = values_of(result.model)
+    return {
+        **timed_figures(trace, clock, result.loss * TARGET, total),
         "steps": result.num_steps,
         "reason": result.reason,
         "loss": result.loss,
-        "values": values_of(result.model),
+        "values": values,
         "std_errors": {
             name.rsplit(".", 1)[-1]: float(se)
             for name, se in zip(result.names, result.std_errors)
         },
-        "relative_errors": relative_errors(values_of(result.model)),
+        "relative_errors": relative_errors(values),
         "train_rmse_m": float(result.rmse[0]),
         "train_nrmse": float(result.nrmse[0]),
         "unidentified": list(result.unidentified),
@@ -256,7 +291,9 @@ def run_fit(start, record, substeps, solver):
 def flat_residual(start, record, substeps):
     """`fit_system`'s residual of `record` as a function of the free parameters as
     one flat vector (the layout finite differences need), and their start values:
-    (residual, x0, treedef, static)."""
+    (residual, x0, treedef, static). Built from `fit_system`'s private pieces (there
+    is no public residual): the same simulation, closing over the data and the fixed
+    parameters as `fit_system`'s own residual does (`_closed_residuals`)."""
     from jaxmr._closed_loop import _as_controller
     from jaxmr._identify.system import _Simulation, _stack_records
     from jaxmr._parameter import free_filter, unwrap
@@ -280,37 +317,40 @@ def flat_residual(start, record, substeps):
     return residual, x0, treedef, static
 
 
-def run_scipy(start, record, substeps, max_nfev):
-    """scipy least_squares (trf, 2-point differences) on the same jitted residual."""
+def scipy_fit(
+    train, periods, substeps, method, exact, target, budget, max_nfev=None
+) -> dict:
+    """scipy's least_squares (`method`, finite differences or, `exact`, a jitted
+    `jax.jacfwd`) on `fit_system`'s residual (`flat_residual`, jitted) from the same
+    start, in a fresh process, until `target` or `budget` [s]
+    (`_fit_baselines.scipy_to_target`); with the parameters it ended at."""
+    from _fit_baselines import cold_jax, scipy_to_target
+
+    cold_jax()
+    record, start = training_record(train, periods, substeps)
+    built = {}
+
+    def build():
+        residual, x0, treedef, static = flat_residual(start, record, substeps)
+        built.update(treedef=treedef, static=static)
+        return residual, x0, ()
+
+    figures = scipy_to_target(
+        build,
+        method=method,
+        exact=exact,
+        target=target,
+        budget=budget,
+        max_nfev=max_nfev,
+    )
     from jaxmr._parameter import unwrap
 
-    residual, x0, treedef, static = flat_residual(start, record, substeps)
-    residual = jax.jit(residual)
-    t0 = time.perf_counter()
-    residual(jnp.asarray(x0)).block_until_ready()
-    compile_s = time.perf_counter() - t0
-    calls = [0]
-
-    def fun(x):
-        calls[0] += 1
-        return np.asarray(residual(jnp.asarray(x)))
-
-    t0 = time.perf_counter()
-    sol = scipy.optimize.least_squares(
-        fun, x0, jac="2-point", method="trf", x_scale="jac", max_nfev=max_nfev
+    leaves = [jnp.asarray(v) for v in figures.pop("x")]
+    model = unwrap(
+        eqx.combine(jax.tree.unflatten(built["treedef"], leaves), built["static"])
     )
-    elapsed = time.perf_counter() - t0
-    fitted = jax.tree.unflatten(treedef, [jnp.asarray(v) for v in sol.x])
-    model = unwrap(eqx.combine(fitted, static))
-    return model, {
-        "compile_s": compile_s,
-        "run_s": elapsed,
-        "residual_evaluations": calls[0],
-        "status": int(sol.status),
-        "message": str(sol.message),
-        "loss": float(sol.cost),
-        "relative_errors": relative_errors(values_of(model)),
-    }
+    values = values_of(model)
+    return figures | {"values": values, "relative_errors": relative_errors(values)}
 
 
 def timed_simulations(systems: dict, u, kind, substeps):
@@ -324,45 +364,72 @@ def timed_simulations(systems: dict, u, kind, substeps):
     return out, timing
 
 
+# scipy's methods, each with finite differences and with the exact Jacobian; "lm"
+# (MINPACK) where there are no bounds, as here (the free variables are unbounded).
+SCIPY_METHODS = ("trf", "lm")
+
+
 def against_scipy(
-    train, periods, substeps, solver="fast", max_nfev=400, no_scipy=False
+    train,
+    periods,
+    substeps,
+    solver="fast",
+    max_nfev=None,
+    no_scipy=False,
+    budget_factor=10.0,
 ):
     """`fit_system` on the training record's first `periods` periods, and scipy's
-    least_squares with finite differences on the same residual from the same start
-    (unless `no_scipy`): (jaxmr's result, the start, scipy's model or None, figures
-    with issue 9's `speedup_vs_scipy_fd`: scipy's time, its residual's compilation
-    included, over jaxmr's, compilation included, to the same loss)."""
-    m, c, k = linear_fit(train.u, train.y)
-    n = periods * PERIOD
-    record = SystemRecord(
-        train.t[:n],
-        train.y[:n],
-        excitation(train.u[:PERIOD], "multisine", substeps, periods),
-        name=f"train, periods 1-{periods}",
-    )
-    start = start_system(m, c, k)
+    least_squares on the same residual from the same start (unless `no_scipy`), each
+    in a fresh process, at equal accuracy (`_fit_baselines`): scipy's "trf" and "lm",
+    each with finite differences and with the exact Jacobian, until jaxmr's final
+    loss × (1 + 1e-3) or `budget_factor` × jaxmr's time to it (at least 30 s).
+
+    **Returns:** (jaxmr's fitted system, the start, the fastest finite-difference
+    baseline's system or None, figures): `fit` and `scipy` (one entry per baseline),
+    and `speedup_vs_scipy_fd`, `speedup_vs_scipy_exact_jacobian` (the fastest
+    baseline of each kind over jaxmr, compilation included) with their
+    `_excluding_compile`.
+    """
+    from _fit_baselines import TARGET, in_fresh_process, speedups
+
     print(f"fit_system on {periods} period(s), 6 parameters ...", flush=True)
-    # "lm": optimistix's LevenbergMarquardt, fit_system's alternative to its default.
-    lm = None if solver == "fast" else optx.LevenbergMarquardt(rtol=1e-8, atol=1e-10)
-    result, fit = run_fit(start, record, substeps, lm)
-    print(result)
-    print(f"  {fit['total_s']:.1f} s: first step {fit['first_step_s']:.1f} s (compile), "
-          f"then {fit['median_step_s']:.2f} s per step")  # fmt: skip
+    fit = in_fresh_process(jaxmr_fit, train, periods, substeps, solver)
+    print(f"  {fit['total_seconds']:.1f} s in all ({fit['compile_seconds']:.1f} s "
+          f"compiling), {fit['steps']} steps, loss {fit['loss']:.6g}; the target in "
+          f"{fit['seconds']:.1f} s")  # fmt: skip
+    _, start = training_record(train, periods, substeps)
     figures = {"fit": fit}
     if no_scipy:
-        return result, start, None, figures
-    print("scipy least_squares, finite differences ...", flush=True)
-    model, s = run_scipy(start, record, substeps, max_nfev)
-    figures["scipy"] = s
-    print(f"  {s['run_s']:.1f} s, {s['residual_evaluations']} residuals, "
-          f"loss {s['loss']:.6g} (jaxmr {result.loss:.6g})")  # fmt: skip
-    figures["speedup_vs_scipy_fd"] = (s["compile_s"] + s["run_s"]) / fit["total_s"]
-    figures["speedup_vs_scipy_fd_compiled"] = s["run_s"] / (
-        fit["total_s"] - fit["compile_s_estimate"]
-    )
+        return with_values(start, fit["values"]), start, None, figures
+    target = fit["loss"] * TARGET
+    budget = max(30.0, budget_factor * fit["seconds"])
+    baselines = {}
+    for method in SCIPY_METHODS:
+        for exact in (False, True):
+            name = f"{method}_{'exact' if exact else 'fd'}"
+            print(f"scipy least_squares {name} ...", flush=True)
+            baselines[name] = b = in_fresh_process(
+                scipy_fit, train, periods, substeps, method, exact, target, budget,
+                max_nfev,
+            )  # fmt: skip
+            print(f"  {b['seconds']:.1f} s ({b['compile_seconds']:.1f} s compiling), "
+                  f"{b['residual_evaluations']} residuals, {b['stop']}")  # fmt: skip
+    figures["scipy"] = baselines
+    figures["target_loss"] = target
+    figures["budget_seconds"] = budget
+    figures |= speedups(fit, baselines, "vs_scipy")
     print(f"  speedup_vs_scipy_fd {figures['speedup_vs_scipy_fd']:.2f} "
-          f"({figures['speedup_vs_scipy_fd_compiled']:.2f} without compiling)")  # fmt: skip
-    return result, start, model, figures
+          f"({figures['speedup_vs_scipy_fd_excluding_compile']:.2f} without "
+          "compiling)")  # fmt: skip
+    fd = min(
+        (b for b in baselines.values() if not b["exact"]), key=lambda b: b["seconds"]
+    )
+    return (
+        with_values(start, fit["values"]),
+        start,
+        with_values(start, fd["values"]),
+        figures,
+    )
 
 
 def main(argv=None):
@@ -383,7 +450,19 @@ def main(argv=None):
     )
     parser.add_argument("--substeps", type=int, default=20, help="RK4 steps / sample")
     parser.add_argument("--no-scipy", action="store_true")
-    parser.add_argument("--max-nfev", type=int, default=400)
+    parser.add_argument(
+        "--max-nfev",
+        type=int,
+        default=None,
+        help="scipy's max_nfev (default scipy's own); a smoke run caps it",
+    )
+    parser.add_argument(
+        "--budget-factor",
+        type=float,
+        default=10.0,
+        help="each scipy baseline stops after this many times jaxmr's time to the "
+        "target (at least 30 s) if it has not reached it (default 10)",
+    )
     args = parser.parse_args(argv)
 
     u_test = load_input(args.test_input)
@@ -416,17 +495,23 @@ def main(argv=None):
     figures["linear"] = {"m": m, "c": c, "k": k, "time_s": time.perf_counter() - t0}
     print(f"linear model: m = {m:.4g} kg, c = {c:.4g} N s/m, k = {k:.4g} N/m")
 
-    result, _, scipy_model, fit_figures = against_scipy(
-        train, args.periods, args.substeps, args.solver, args.max_nfev, args.no_scipy
+    fitted, _, scipy_model, fit_figures = against_scipy(
+        train,
+        args.periods,
+        args.substeps,
+        args.solver,
+        args.max_nfev,
+        args.no_scipy,
+        args.budget_factor,
     )
     figures.update(fit_figures)
     # The first is timed with its compilation, the others reuse it.
-    systems = {"fitted": result.model, "true": true, "linear": linear_system(m, c, k)}
+    systems = {"fitted": fitted, "true": true, "linear": linear_system(m, c, k)}
     if scipy_model is not None:
         systems["scipy"] = scipy_model
 
     # The fitted model on the whole training record (all five periods).
-    y_fit_train = from_rest(result.model, train_signal, train.u.size, args.substeps)
+    y_fit_train = from_rest(fitted, train_signal, train.u.size, args.substeps)
     figures["fitted_train_rmse_m"] = rms(y_fit_train - train.y)
     figures["fitted_vs_true_train_rmse_m"] = rms(y_fit_train - y_true_train)
 

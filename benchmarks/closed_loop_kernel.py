@@ -13,8 +13,9 @@ skyhook law with its inverse model (hard law, T = 0): every 1 ms the desired for
 c_sky times the body velocity, and the command is the current in [0, 1] A whose force is
 nearest to it in the damper's present state; it acts one sample later (delay 1), held
 over four RK4 steps of 0.25 ms. The road is an ISO 8608 class C profile at 20 m/s on a
-1 ms grid, interpolated by cubic Hermite at every RK4 stage. Comfort is `jaxmr.wk_rms`
-of the body acceleration at the controller's samples (what `jaxmr.comfort` reads).
+1 ms grid, interpolated by cubic Hermite at every RK4 stage. Comfort is
+`jaxmr.metrics.wk_rms` of the body acceleration at the controller's samples (what
+`jaxmr.metrics.comfort` reads).
 
 Two kernels:
 
@@ -55,6 +56,7 @@ import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
 import jaxmr  # noqa: E402
+import jaxmr.metrics  # noqa: E402
 from jaxmr._tune.batch import road_batch  # noqa: E402
 from jaxmr._tune.evaluate import _evaluate  # noqa: E402
 from jaxmr._tune.loss import Setup, loss_and_grad  # noqa: E402
@@ -300,7 +302,7 @@ def _kernels(car, road_dt, duration, specialised):
         a = kernel_acceleration(
             c_sky, v, d, road_dt, duration, parameters, layout=layout, remat=remat
         )
-        return jaxmr.wk_rms(a, DT)
+        return jaxmr.metrics.wk_rms(a, DT)
 
     def forward(c_sky, values, derivatives, parameters, layout):
         return jax.vmap(lambda v, d: comfort(c_sky, v, d, parameters, layout, False))(
@@ -357,10 +359,10 @@ def closed_loop_speed(duration=8.0, roads=12, repeats=3, specialised=True) -> di
         runs[name] = (*_compiled(jitted, *args), args)
         compile_s[name] = runs[name][1]
 
-    metrics = (("comfort", jaxmr.comfort),)
+    metrics = (("comfort", jaxmr.metrics.comfort),)
     steps = (jaxmr.Sampling(dt=DT, delay=DELAY), jaxmr.FixedStep(SUBSTEPS))
     add("jaxmr_forward", _evaluate, car, law, batch, duration, metrics, *steps)
-    setup = Setup(True, as_tuple_where(_c_sky), jaxmr.comfort, duration, *steps)
+    setup = Setup(True, as_tuple_where(_c_sky), jaxmr.metrics.comfort, duration, *steps)
     padded = road_batch(batch)
     add("jaxmr_gradient", loss_and_grad, (log_c,), (car, law), None, padded, setup)
     kinds = ("kernel", "specialised_kernel") if specialised else ("kernel",)

@@ -2,9 +2,9 @@
 
 1. Free decay, the source's experiment: the body released 16° above rest, the cam still,
    15 s at 1 kHz (control and sampling), one sample of delay. Settling time: the body
-   stays within 0.5° of where it comes to rest (`jaxmr.decay_settling_time`). Writes
-   `settling_s` for 0, 0.2 and 1 A (the source: ≈ 11 s and ≈ 6 s, falling with current)
-   and the same for every constant current and controller.
+   stays within 0.5° of where it comes to rest (`jaxmr.metrics.decay_settling_time`).
+   Writes `settling_s` for 0, 0.2 and 1 A (the source: ≈ 11 s and ≈ 6 s, falling
+   with current) and the same for every constant current and controller.
 2. The controllers against the fastest constant current: `controller_settling_ratio`
    (the best controller's settling time over that current's; goal ≤ 1.1) and
    `controller_current_ratio` (the best controller's mean current over that constant

@@ -17,12 +17,10 @@ from typing import TYPE_CHECKING
 from ._version import __version__ as __version__
 
 if TYPE_CHECKING:
-    from ._analysis import energy_per_cycle as energy_per_cycle
     from ._channel import ChannelDelay as ChannelDelay
     from ._closed_loop import (
         Sampling as Sampling,
         SystemSolution as SystemSolution,
-        dissipated_work as dissipated_work,
         free_decay as free_decay,
         simulate_system as simulate_system,
     )
@@ -34,20 +32,22 @@ if TYPE_CHECKING:
         ConstantCurrent as ConstantCurrent,
         ContinuousClippedOptimal as ContinuousClippedOptimal,
         CurrentSchedule as CurrentSchedule,
+        DamperObserver as DamperObserver,
         DamperPlant as DamperPlant,
         ForceFeedback as ForceFeedback,
         Groundhook as Groundhook,
         Hybrid as Hybrid,
         LyapunovController as LyapunovController,
+        ObserverBasedController as ObserverBasedController,
         OnOffGroundhook as OnOffGroundhook,
         OnOffSkyhook as OnOffSkyhook,
         PowerDrivenDamper as PowerDrivenDamper,
+        Sensor as Sensor,
+        Sensors as Sensors,
         Skyhook as Skyhook,
+        VelocityEstimator as VelocityEstimator,
         feature_scales as feature_scales,
-        lqr as lqr,
-        quarter_car_state_space as quarter_car_state_space,
-        solve_lyapunov as solve_lyapunov,
-        solve_riccati as solve_riccati,
+        realistic_sensors as realistic_sensors,
         with_temperature as with_temperature,
     )
     from ._current_dynamics import (
@@ -119,20 +119,7 @@ if TYPE_CHECKING:
         mr_brake_actuator as mr_brake_actuator,
         mrb_107_3 as mrb_107_3,
     )
-    from ._metrics import (
-        crest_factor as crest_factor,
-        dissipated_energy as dissipated_energy,
-        mean_current as mean_current,
-        peak as peak,
-        rms as rms,
-        rms_current as rms_current,
-        settling_time as settling_time,
-        vdv as vdv,
-        wk_response as wk_response,
-        wk_rms as wk_rms,
-        wk_state_space as wk_state_space,
-        wk_weighted as wk_weighted,
-    )
+    from ._misc import Check as Check
     from ._opensees import (
         from_opensees as from_opensees,
         to_opensees as to_opensees,
@@ -189,7 +176,6 @@ if TYPE_CHECKING:
         QuarterCar as QuarterCar,
         SASRig as SASRig,
         SingleDegreeOfFreedom as SingleDegreeOfFreedom,
-        decay_settling_time as decay_settling_time,
         inverse_dynamics as inverse_dynamics,
         passenger_car as passenger_car,
         sas_rig as sas_rig,
@@ -203,7 +189,6 @@ if TYPE_CHECKING:
     from ._tune import (
         TuneResult as TuneResult,
         cma_es as cma_es,
-        comfort as comfort,
         evaluate as evaluate,
         random_search as random_search,
         tune as tune,
@@ -211,8 +196,17 @@ if TYPE_CHECKING:
 
 
 # Submodules with their own vocabulary (files, figures, model templates, scores,
-# devices, constants), imported on use as well.
-_SUBPACKAGES = ("constants", "data", "devices", "plot", "scores", "templates")
+# metrics, linear control, devices, constants), imported on use as well.
+_SUBPACKAGES = (
+    "constants",
+    "data",
+    "devices",
+    "linear",
+    "metrics",
+    "plot",
+    "scores",
+    "templates",
+)
 _exports: dict[str, tuple[str, str]] | None = None
 
 # Names that left the top level in this release (CHANGELOG.md), kept one release as
@@ -230,6 +224,26 @@ _MOVED = {
     "AISI_12L14_MAJOR_LOOP": "constants",
     "MEASUREMENT_NAMES": "constants",
     "UTFSM_SPENCER_PUBLISHED": "constants",
+    "comfort": "metrics",
+    "crest_factor": "metrics",
+    "decay_settling_time": "metrics",
+    "dissipated_energy": "metrics",
+    "dissipated_work": "metrics",
+    "energy_per_cycle": "metrics",
+    "mean_current": "metrics",
+    "peak": "metrics",
+    "rms": "metrics",
+    "rms_current": "metrics",
+    "settling_time": "metrics",
+    "vdv": "metrics",
+    "wk_response": "metrics",
+    "wk_rms": "metrics",
+    "wk_state_space": "metrics",
+    "wk_weighted": "metrics",
+    "lqr": "linear",
+    "quarter_car_state_space": "linear",
+    "solve_lyapunov": "linear",
+    "solve_riccati": "linear",
 }
 
 

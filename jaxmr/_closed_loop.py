@@ -8,7 +8,10 @@ import jax
 import jax.numpy as jnp
 
 from ._control.base import AbstractController, ConstantCurrent, DamperPlant
-from ._custom_types import Array, Float, Scalar
+from ._control.observer_based import ObserverBasedController, _NoPlant
+from ._control.sampling import Sampling
+from ._control.sensors import Sensors, readings
+from ._custom_types import Array, Float, PyTree, Scalar
 from ._fitted_range import FittedRange, check_fitted_range
 from ._integrate import FixedStep
 from ._metrics import dissipated_energy
@@ -20,43 +23,6 @@ from ._systems.base import AbstractSystem
 from ._systems.sas_rig import SASRig
 
 _DEGREE = math.pi / 180  # [rad]
-
-
-class Sampling(eqx.Module):
-    """The timing of a digital controller: how often it samples and how late its
-    command acts. Taken by `simulate_system`, `free_decay` and the tuners (`tune`,
-    `random_search`, `cma_es`, `evaluate`); how the states are integrated between
-    samples is their `integrator` (`FixedStep`).
-
-    **Arguments:**
-
-    - `dt`: the sample time [s], the controller's period; default 1e-3 (1 kHz).
-    - `delay`: whole samples between a measurement and the command it leads to acting
-      on the damper; default 1 (0: at once).
-    """
-
-    dt: float = eqx.field(static=True, default=1e-3)
-    delay: int = eqx.field(static=True, default=1)
-
-    def __check_init__(self):
-        if isinstance(self.dt, bool) or not isinstance(self.dt, (int, float)):
-            raise TypeError(
-                f"Sampling: `dt` must be a number of seconds, got {self.dt!r}."
-            )
-        if not (math.isfinite(self.dt) and self.dt > 0):
-            raise ValueError(
-                f"Sampling: `dt` must be a positive number of seconds, got {self.dt!r}."
-            )
-        if isinstance(self.delay, bool) or not isinstance(self.delay, int):
-            raise TypeError(
-                f"Sampling: `delay` must be a whole number of samples, got "
-                f"{self.delay!r}."
-            )
-        if self.delay < 0:
-            raise ValueError(
-                f"Sampling: `delay` must be a whole number of samples >= 0, got "
-                f"{self.delay!r}."
-            )
 
 
 def loop_settings(
@@ -131,6 +97,12 @@ class SystemSolution(eqx.Module):
     - `final_state`: the state at the end, `duration` [s].
     - `result`: a `jaxmr.RESULTS` code.
     - `dt`: the sample time [s] (a Python number, for filters that need it concrete).
+    - `measured`: with `sensors`, the readings the controller got at each sample, by
+      name (each in its measurement's unit); `None` with perfect information (it read
+      `outputs`).
+    - `controller_states`: the controller's state after each sample (a pytree of
+      arrays with a leading samples axis, `()` for a law without memory), e.g. an
+      `ObserverBasedController`'s observed damper state.
     """
 
     ts: Float[Array, "*batch samples"]
@@ -143,6 +115,8 @@ class SystemSolution(eqx.Module):
     result: RESULTS
     state_names: tuple[str, ...] = eqx.field(static=True)
     dt: float = eqx.field(static=True, default=1e-3)
+    measured: dict[str, Float[Array, "*batch samples"]] | None = None
+    controller_states: PyTree = ()
 
     def __getitem__(self, name: str) -> Float[Array, "*batch samples"]:
         """`solution["body_acceleration"]`: an output by name."""
@@ -182,17 +156,46 @@ def _check_arguments(system, excitation, duration, sampling: Sampling):
     return as_signal(excitation, "excitation")
 
 
+def _check_sensors(sensors, key) -> Sensors | None:
+    """`sensors` checked against `key`: a `Sensors` set, or None for the oracle."""
+    if isinstance(sensors, str) and sensors == "oracle":
+        if key is not None:
+            raise ValueError(
+                "simulate_system: `key` draws the sensors' noise; give it with "
+                "`sensors=` (e.g. jaxmr.realistic_sensors(system)), not with the "
+                "oracle's perfect information."
+            )
+        return None
+    if not isinstance(sensors, Sensors):
+        raise TypeError(
+            "simulate_system: `sensors` must be a jaxmr.Sensors set (e.g. "
+            'jaxmr.realistic_sensors(system)) or "oracle" (perfect information), got '
+            f"{sensors!r}."
+        )
+    if key is None:
+        raise TypeError(
+            "simulate_system: `sensors` need `key=jax.random.key(...)` for their noise."
+        )
+    if not isinstance(key, jax.Array):
+        raise TypeError(
+            "simulate_system: `key` must be a jax.random.key(...), got "
+            f"{type(key).__name__}."
+        )
+    return sensors
+
+
 def _system_checks(system, q0, i_max):
     # The damper's laws over every current the controller may command, [0, i_max].
     zero = jnp.zeros((), q0.dtype)
     checks = list(system.constraints()) + system.damper.hysteresis.checks_over(
         zero, jnp.asarray(i_max, q0.dtype)
     )
-    for ok, message in checks:
+    for check in checks:
+        # The message quotes a value only where it is concrete (`Check.message`).
         q0 = eqx.error_if(
             q0,
-            jnp.logical_not(ok),
-            f"{type(system).__name__}: {message} (found while simulating).",
+            jnp.logical_not(check.ok),
+            f"{type(system).__name__}: {check.message()} (found while simulating).",
         )
     return q0
 
@@ -229,6 +232,8 @@ def simulate_system(
     throw: bool = True,
     unroll: int = 1,
     fitted_range: FittedRange | None = None,
+    sensors: Sensors | str = "oracle",
+    key: jax.Array | None = None,
     **deprecated,
 ) -> SystemSolution:
     r"""Simulate a system with its damper under a digital controller.
@@ -251,8 +256,8 @@ def simulate_system(
       (a jaxmr signal or a constant).
     - `controller`: a jaxmr controller, or a number for a constant current [A].
     - `duration`: simulated time [s] (python float: it sets the number of samples).
-    - `sampling`: the controller's sample time and delay, a `Sampling` (default
-      `Sampling()`).
+    - `sampling`: the controller's sample time and delay, a `Sampling` (default: an
+      `ObserverBasedController`'s own `sampling`, else `Sampling()`).
     - `integrator`: the RK4 steps per sample, a `FixedStep`. Default: chosen from
       the damper's own stiffness along the run, as `fit`'s `StepPolicy` chooses its
       steps from the motion: `FixedStep()` (4 substeps) where the largest rate λ
@@ -279,6 +284,18 @@ def simulate_system(
       interval exceeded and by how much, before raising if the run failed (a damper
       driven far beyond its data is a common cause). Skipped when traced (under jit,
       vmap or grad).
+    - `sensors`: what the controller reads. `"oracle"` (default): perfect
+      information, every true measurement by name and the simulated device itself,
+      at its true state, for the inverse models (`DamperPlant`), which no real
+      controller has. A `Sensors` set (e.g. `realistic_sensors(system)`): the
+      controller reads only those sensors' readings (noise, bias, bandwidth,
+      quantisation, sample-and-hold) and the time; a law then runs inside an
+      `ObserverBasedController`, which estimates the velocities and observes the
+      damper's state (a bare law that inverts the damper, or reads a quantity no
+      sensor gives, raises saying so). The readings are in `measured`.
+    - `key`: the `jax.random` key of the sensors' noise, required with `sensors`
+      (the run's noise is `sensors.noise(key, samples)`, row $k$ for sample $k$;
+      gradients flow through the sampled noise).
 
     The keywords `dt`, `substeps` and `delay` of earlier releases still work, with a
     `DeprecationWarning`: they are `sampling=Sampling(dt, delay)` and
@@ -295,17 +312,32 @@ def simulate_system(
     # excitation would be a static argument there, one compilation per value.
     # No step given: it is chosen from the damper's stiffness (`_with_chosen_steps`).
     choose = integrator is None and "substeps" not in deprecated
+    controller = _as_controller(controller)
+    own = (
+        controller.sampling if isinstance(controller, ObserverBasedController) else None
+    )
+    if sampling is None and own is not None and not {"dt", "delay"} & set(deprecated):
+        sampling = own
     sampling, integrator = loop_settings(
         "simulate_system", sampling, integrator, deprecated
     )
-    controller = _as_controller(controller)
+    if own is not None and (own.dt, own.delay) != (sampling.dt, sampling.delay):
+        raise ValueError(
+            "simulate_system: the ObserverBasedController steps its filters and "
+            f"observer at {own}, but the loop samples at {sampling}: give the "
+            "controller the loop's `sampling` (or leave `sampling` out here)."
+        )
+    sensor_set = _check_sensors(sensors, key)
     excitation = _check_arguments(system, excitation, duration, sampling)
     _excitation_checks(excitation, sampling.dt, duration)
     if not isinstance(unroll, int) or not 1 <= unroll:
         raise ValueError(f"`unroll` must be a positive integer, got {unroll!r}.")
     fitted_range = check_fitted_range(fitted_range)
     traced = not is_concrete(
-        eqx.filter((system, excitation, controller, initial_state), eqx.is_array)
+        eqx.filter(
+            (system, excitation, controller, initial_state, sensor_set, key),
+            eqx.is_array,
+        )
     )
 
     def run(integrator, throw):
@@ -319,6 +351,8 @@ def simulate_system(
             initial_state,
             throw,
             min(unroll, integrator.substeps),
+            sensor_set,
+            key,
         )
 
     if traced:  # no value to look at: the solve raises by itself
@@ -444,6 +478,8 @@ def _simulate_system(
     initial_state,
     throw,
     unroll=1,
+    sensors: Sensors | None = None,
+    key=None,
 ) -> SystemSolution:
     dt, delay, substeps = sampling.dt, sampling.delay, integrator.substeps
     samples = int(round(duration / dt))
@@ -483,20 +519,44 @@ def _simulate_system(
             [system.rates(q, t, excitation, force), damper.rates(s, x, v, applied)]
         )
 
+    # What the controller reads: the truth (perfect information, the oracle's), or
+    # the sensors' readings at sample k, with a damper it may not read unless it
+    # observes one (or asks for the oracle) itself.
+    blind = not isinstance(controller, ObserverBasedController)
+
+    def read(truth, plant, sensor_state, k, eps):
+        if sensors is None:
+            return truth, plant, sensor_state
+        values, sensor_state = sensors.step(sensor_state, truth, eps, k, dt)
+        values["time"] = truth["time"]
+        if blind:
+            plant = _NoPlant(why=_BLIND)
+        return readings(values), plant, sensor_state
+
     # The first command is decided on the rest state, with the damper at zero current.
     x0, v0 = system.damper_motion(q0, t0, excitation)
     s_probe = damper.initial_state(x0, v0, jnp.zeros_like(t0))
-    m0, plant0 = observe(jnp.concatenate([q0, s_probe]), t0, jnp.zeros_like(t0))
+    truth0, plant0 = observe(jnp.concatenate([q0, s_probe]), t0, jnp.zeros_like(t0))
+    if sensors is None or key is None:
+        sensor0 = ()
+        noise = jnp.zeros((samples, 0), t0.dtype)  # nothing to draw
+    else:
+        sensor0 = sensors.init(truth0)
+        noise = sensors.noise(key, samples, t0.dtype)
+    k0 = jnp.zeros((), dtype=int)
+    m0, plant0, _ = read(truth0, plant0, sensor0, k0, noise[0])
     c_state0 = controller.init(m0)
     first, _ = controller(m0, c_state0, plant0)
     y0 = jnp.concatenate([q0, damper.initial_state(x0, v0, first)])
     pending0 = jnp.full((max(delay, 1),), first, dtype=t0.dtype)
 
-    def sample(carry, k):
-        y, c_state, pending, applied_before = carry
-        t = k * dt
+    def sample(carry, inputs):
+        y, c_state, pending, applied_before, sensor_state = carry
+        k, eps = inputs
+        t = k.astype(t0.dtype) * dt
         measurement, plant = observe(y, t, applied_before)
-        command, c_state = controller(measurement, c_state, plant)
+        seen, plant, sensor_state = read(measurement, plant, sensor_state, k, eps)
+        command, c_state = controller(seen, c_state, plant)
         command = jnp.asarray(command, dtype=t0.dtype)
         if delay == 0:
             applied = command
@@ -518,14 +578,16 @@ def _simulate_system(
             applied,
             damper.effective_current(s, applied),
             y,
+            None if sensors is None else {n: seen[n] for n in sensors.names},
+            c_state,
         )
-        return (y_next, c_state, pending, applied), record
+        return (y_next, c_state, pending, applied, sensor_state), record
 
     sample = jax.checkpoint(sample, prevent_cse=False)
-    ks = jnp.arange(samples, dtype=t0.dtype)
-    carry = (y0, c_state0, pending0, first)
-    (y_end, *_), records = jax.lax.scan(sample, carry, ks)
-    outputs, command, applied, current, states = records
+    ks = jnp.arange(samples)
+    carry = (y0, c_state0, pending0, first, sensor0)
+    (y_end, *_), records = jax.lax.scan(sample, carry, (ks, noise))
+    outputs, command, applied, current, states, measured, c_states = records
     ts = outputs.pop("time")
 
     slack = 1e-9 * (1 + i_max)
@@ -547,15 +609,26 @@ def _simulate_system(
         result=result,
         state_names=system.state_names + damper.state_names,
         dt=float(dt),
+        measured=measured,
+        controller_states=c_states,
     )
     if throw:
         solution = result.error_if(solution, result != RESULTS.successful)
     return solution
 
 
+_BLIND = (
+    "With `sensors`, a controller reads only their readings: this law inverts the "
+    "damper, whose state no sensor gives. Run it inside "
+    "jaxmr.ObserverBasedController(law, estimator=jaxmr.VelocityEstimator(), "
+    "observer=jaxmr.DamperObserver(nominal_damper)), which observes that state with "
+    "its own model (or, for research comparisons only, oracle=True)."
+)
+
+
 def dissipated_work(solution: SystemSolution) -> Scalar:
     """$\\int F v\\,dt$ [J]: the work the damper absorbed over the run (trapezoid,
-    `jaxmr.dissipated_energy` of the solution's samples)."""
+    `jaxmr.metrics.dissipated_energy` of the solution's samples)."""
     outputs = solution.outputs
     return dissipated_energy(
         solution.ts, outputs["damper_force"], outputs["damper_velocity"]

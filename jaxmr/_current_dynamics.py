@@ -12,8 +12,8 @@ import equinox as eqx
 import jax.numpy as jnp
 
 from ._current_law import _plain, as_parameter
-from ._custom_types import Array, Bool, Float, Scalar, State
-from ._misc import check_concrete
+from ._custom_types import Array, Float, Scalar, State
+from ._misc import Check, check_concrete
 
 
 class AbstractCurrentDynamics(eqx.Module):
@@ -34,9 +34,10 @@ class AbstractCurrentDynamics(eqx.Module):
     def effective(self, state: State) -> Scalar:
         """The effective current [A or V] for this state."""
 
-    def constraints(self) -> list[tuple[Bool[Array, ""], str]]:
-        """Validity checks `(ok, message)` of the parameters; `simulate` raises the
-        message of a failing one (for parameters only known under jit)."""
+    def constraints(self) -> list[Check]:
+        """Validity checks of the parameters ([`jaxmr.Check`][jaxmr.Check]s);
+        `simulate` raises the message of a failing one (for parameters only known
+        under jit)."""
         return []
 
 
@@ -56,16 +57,15 @@ class FirstOrderLag(AbstractCurrentDynamics):
     state_names: ClassVar[tuple[str, ...]] = ("u",)
 
     def __check_init__(self):
-        for ok, message in self.constraints():
-            check_concrete(ok, f"FirstOrderLag: {message}", _plain(self.rate))
+        for check in self.constraints():
+            check_concrete(
+                check.ok, check.named("FirstOrderLag").message(), _plain(self.rate)
+            )
 
     def constraints(self):
         rate = _plain(self.rate)
         return [
-            (
-                rate > 0,
-                f"`rate` must be positive (1/time constant in 1/s), got {rate}.",
-            )
+            Check(rate > 0, "`rate` must be positive (1/time constant in 1/s)", rate)
         ]
 
     def initial_state(self, command: Scalar) -> State:

@@ -1,14 +1,15 @@
-"""Small numerical helpers used by several models."""
+"""Small helpers used by several models: numerics, and validity checks as data."""
 
 import warnings
 from collections.abc import Callable
 
+import equinox as eqx
 import jax
 import jax.core
 import jax.numpy as jnp
 import numpy as np
 
-from ._custom_types import Array, ArrayLike
+from ._custom_types import Array, ArrayLike, Bool
 
 
 def default_float():
@@ -65,6 +66,52 @@ def is_concrete(*xs) -> bool:
     """True when every array in `xs` has a value now (not a tracer under jit/vmap/grad)."""
     leaves = jax.tree.leaves(xs)
     return not any(isinstance(x, jax.core.Tracer) for x in leaves)
+
+
+class Check(eqx.Module):
+    """A validity check as data: whether it holds, the rule it states and the value
+    it is about, from which its message is built (`message`).
+
+    `constraints()` and `checks()` of models, current dynamics, systems and signals
+    return these. A check of parameters known only under `jit` has a traced `ok` and
+    `value`: it raises at run time (`equinox.error_if`) with a message that quotes the
+    value only when it is concrete, since a tracer's repr says nothing to a user.
+
+    **Arguments:**
+
+    - `ok`: whether the check holds, a boolean or boolean array (all must hold),
+      maybe traced.
+    - `rule`: what must hold, in words, without a final full stop: "`rho` must be
+      > 0".
+    - `value`: the value the rule is about (a number or array, in the rule's units),
+      quoted by the message when concrete; a dict `{name: value}` for a rule about
+      several (quoted `name=value, ...`); `None` for a rule that quotes none.
+
+    ```python
+    def constraints(self):
+        return [jaxmr.Check(self.rho > 0, "`rho` must be > 0", self.rho)]
+    ```
+    """
+
+    ok: Bool[ArrayLike, "..."]
+    rule: str = eqx.field(static=True)
+    value: object = None
+
+    def message(self) -> str:
+        """`"{rule}, got {value}."`, or `"{rule}."` when there is no value or it is
+        traced."""
+        if self.value is None or not is_concrete(self.value):
+            return f"{self.rule}."
+        if isinstance(self.value, dict):
+            got = ", ".join(f"{name}={value}" for name, value in self.value.items())
+        else:
+            got = f"{self.value}"
+        return f"{self.rule}, got {got}."
+
+    def named(self, prefix: str) -> "Check":
+        """This check with its rule prefixed by `prefix` (`"{prefix}: {rule}"`): the
+        model or argument it belongs to."""
+        return Check(self.ok, f"{prefix}: {self.rule}", self.value)
 
 
 def check_concrete(condition_ok, message: str, *values) -> None:

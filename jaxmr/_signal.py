@@ -13,8 +13,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._custom_types import Array, Bool, Float, Scalar
-from ._misc import as_float_array, check_concrete, is_concrete
+from ._custom_types import Array, Float, Scalar
+from ._misc import Check, as_float_array, check_concrete, is_concrete
 
 TWO_PI = 2 * jnp.pi
 
@@ -41,16 +41,16 @@ class AbstractSignal(eqx.Module):
         integrator steps to them exactly instead of finding each by rejected steps."""
         return None
 
-    def checks(self) -> list[tuple[Bool[Array, ""], str]]:
-        """Runtime validity checks `(ok, message)`; every signal's numbers must be
-        finite."""
+    def checks(self) -> list[Check]:
+        """Runtime validity checks ([`jaxmr.Check`][jaxmr.Check]s); every signal's
+        numbers must be finite."""
         leaves = [x for x in jax.tree.leaves(self) if eqx.is_array(x)]
         finite = jnp.all(jnp.array([jnp.all(jnp.isfinite(x)) for x in leaves]))
         return [
-            (
+            Check(
                 finite,
                 f"{type(self).__name__}: its data contain NaN or inf; give finite "
-                "numbers (repair or drop bad samples).",
+                "numbers (repair or drop bad samples)",
             )
         ]
 

@@ -18,7 +18,7 @@ from ._distribute import batch_mesh, gather, pad, padded_size, spread
 from ._fitted_range import FittedRange, check_fitted_range
 from ._hysteresis import AbstractHysteresis
 from ._integrate import AbstractIntegrator, Adaptive, FixedStep
-from ._misc import as_float_array, is_concrete, warn_if_float32
+from ._misc import Check, as_float_array, is_concrete, warn_if_float32
 from ._signal import AbstractSignal, Constant, as_signal
 from ._solution import RESULTS, Solution
 
@@ -55,15 +55,6 @@ def _check_times_now(ts) -> jax.Array:
     return ts
 
 
-def _runtime_message(message: str) -> str:
-    """A constraint's message without the value it quotes when that value is a tracer
-    (its repr, e.g. `JitTracer(float64[])`, says nothing to the user)."""
-    if "Tracer" in message or "Traced<" in message:
-        head, _, _ = message.partition(", got ")
-        return head.rstrip(".") + "."
-    return message
-
-
 def _runtime_checks(damper: Damper, motion, current, ts, table_errors: bool = True):
     """Checks of values only known under jit: they raise with these messages.
 
@@ -73,17 +64,17 @@ def _runtime_checks(damper: Damper, motion, current, ts, table_errors: bool = Tr
     beyond a table must not stop a whole sweep).
     """
     checks = [
-        (
+        Check(
             jnp.all(jnp.isfinite(ts)),
-            "`ts` contains NaN or inf; give finite output times.",
+            "`ts` contains NaN or inf; give finite output times",
         ),
-        (
+        Check(
             jnp.all(jnp.diff(ts) > 0),
-            "`ts` must be strictly increasing; sort the times and drop duplicates.",
+            "`ts` must be strictly increasing; sort the times and drop duplicates",
         ),
     ]
-    checks += [(ok, f"`motion`: {m}") for ok, m in motion.checks()]
-    checks += [(ok, f"`current`: {m}") for ok, m in current.checks()]
+    checks += [check.named("`motion`") for check in motion.checks()]
+    checks += [check.named("`current`") for check in current.checks()]
     lo, hi = current.bounds()
     in_tables = jnp.array(True)
     model = type(damper.hysteresis).__name__
@@ -95,11 +86,11 @@ def _runtime_checks(damper: Damper, motion, current, ts, table_errors: bool = Tr
             # The ranges are traced here: `simulate` and `sweep` quote them when the
             # inputs are concrete (`_check_tables_now`).
             checks.append(
-                (
+                Check(
                     ok,
                     "`current` leaves the current range of a TableLaw in the model "
                     f"(`{model}{path}`; laws are not extrapolated); extend the table "
-                    "or keep the current inside it.",
+                    "or keep the current inside it",
                 )
             )
         else:
@@ -107,11 +98,11 @@ def _runtime_checks(damper: Damper, motion, current, ts, table_errors: bool = Tr
     checks += damper.hysteresis.checks_over(lo, hi)
     if damper.dynamics is not None:
         dynamics = damper.dynamics
-        checks += [
-            (ok, f"{type(dynamics).__name__}: {m}") for ok, m in dynamics.constraints()
-        ]
-    for ok, message in checks:
-        ts = eqx.error_if(ts, jnp.logical_not(ok), _runtime_message(message))
+        name = type(dynamics).__name__
+        checks += [check.named(name) for check in dynamics.constraints()]
+    for check in checks:
+        # The message quotes a value only where it is concrete (`Check.message`).
+        ts = eqx.error_if(ts, jnp.logical_not(check.ok), check.message())
     return ts, in_tables
 
 

@@ -342,6 +342,47 @@ def test_traced_parameter_checked_at_run_time(jit):
     assert "Tracer" not in str(e.value)  # no meaningless tracer repr in the message
 
 
+def test_check_quotes_a_value_only_when_it_is_concrete():
+    check = jaxmr.Check(jnp.array(-1.0) >= 0, "`k` must be >= 0", jnp.array(-1.0))
+    assert check.message() == "`k` must be >= 0, got -1.0."
+    pair = jaxmr.Check(
+        False, "`beta + gamma` must be > 0", {"beta": 1.0, "gamma": -2.0}
+    )
+    assert pair.message() == "`beta + gamma` must be > 0, got beta=1.0, gamma=-2.0."
+    assert check.named("Model").message() == "Model: `k` must be >= 0, got -1.0."
+    # Under jit the value is a tracer: the message states the rule alone.
+    traced = []
+
+    @jax.jit
+    def record(k):
+        traced.append(jaxmr.Check(k >= 0, "`k` must be >= 0", k).message())
+        return k
+
+    record(jnp.array(-1.0))
+    assert traced == ["`k` must be >= 0."]
+
+
+@pytest.mark.parametrize("jit", [eqx.filter_jit, jax.jit], ids=["filter_jit", "jit"])
+def test_traced_system_parameter_message_has_no_tracer(jit):
+    system = jaxmr.SingleDegreeOfFreedom(2.0, bouc_wen(), stiffness=5e4)
+
+    @jit
+    def run(mass):
+        bad = eqx.tree_at(lambda s: s.mass, system, mass)
+        return jaxmr.simulate_system(bad, 0.0, 0.05, 0.01, initial_state=Q0).states
+
+    expected = eqx.EquinoxRuntimeError if jit is eqx.filter_jit else Exception
+    with pytest.raises(
+        expected,
+        match=r"SingleDegreeOfFreedom: `mass` must be > 0 kg\. \(found while simulating\)",
+    ) as e:
+        run(jnp.array(-2.0))
+    assert "Tracer" not in str(e.value) and "Traced<" not in str(e.value)
+    # The same rule with a concrete value quotes it.
+    with pytest.raises(ValueError, match=r"`mass` must be > 0 kg, got -2\.0\.$"):
+        jaxmr.SingleDegreeOfFreedom(-2.0, bouc_wen(), stiffness=5e4)
+
+
 def test_traced_lag_rate_checked_at_run_time():
     good = jaxmr.Damper(bouc_wen(), jaxmr.FirstOrderLag(50.0))
     bad = eqx.tree_at(lambda d: d.dynamics.rate, good, jnp.array(-50.0))

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 import jaxmr
+import jaxmr.metrics
 
 BRAKE_MOTION = jaxmr.Sine(jnp.deg2rad(3.5), 1.0)  # ±3.5°, 1 Hz: the SAS study's loops
 BRAKE_TS = jnp.linspace(0.0, 2.0, 801)  # two cycles; the second is the steady loop
@@ -16,7 +17,7 @@ FIXED = jaxmr.FixedStep(substeps=5)  # h = 0.5 ms
 
 def _energies(device, motion, ts, period, currents=CURRENTS, integrator=FIXED):
     sol = jaxmr.sweep(device, motion, currents, ts, integrator=integrator)
-    return np.asarray(jaxmr.energy_per_cycle(sol, period)), sol
+    return np.asarray(jaxmr.metrics.energy_per_cycle(sol, period)), sol
 
 
 @pytest.mark.parametrize(
@@ -46,7 +47,9 @@ def test_bingham_loop_energy_matches_closed_form():
     sol = jaxmr.simulate(jaxmr.Bingham(f_c=f_c, c0=c0), jaxmr.Sine(a, f), 0.0, ts)
     expected = 4 * f_c * a + np.pi * c0 * 2 * np.pi * f * a**2
     # The trapezoidal rule on 20 000 samples across the sign jumps: ~1e-4 relative.
-    np.testing.assert_allclose(jaxmr.energy_per_cycle(sol, 1.0), expected, rtol=1e-3)
+    np.testing.assert_allclose(
+        jaxmr.metrics.energy_per_cycle(sol, 1.0), expected, rtol=1e-3
+    )
 
 
 def test_spencer_energy_grows_with_voltage():
@@ -157,8 +160,8 @@ def test_bwbn_pinching_narrows_the_loop_near_zero_force():
         0.0,
         ts,
     )
-    e_plain = float(jaxmr.energy_per_cycle(plain, 1.0))
-    e_pinched = float(jaxmr.energy_per_cycle(pinched, 1.0))
+    e_plain = float(jaxmr.metrics.energy_per_cycle(plain, 1.0))
+    e_pinched = float(jaxmr.metrics.energy_per_cycle(pinched, 1.0))
     assert 0 < e_pinched < 0.95 * e_plain
 
 

@@ -301,7 +301,7 @@ def test_select_model_reports_typed_events_in_order():
         3,
     ]
     # Both are Dahl models: "dahl" (a known family) is the simpler by the order, and
-    # it is chosen when within one standard error of the best.
+    # it is chosen when it ties the best median.
     rule = selection.parsimony
     assert rule is not None and rule.chosen == best
     assert best == "dahl" or rule.best == best
@@ -439,36 +439,49 @@ def test_a_programming_error_in_a_candidate_propagates():
 # --- Cross-validation, parsimony and the default candidates (issue 25) ---
 
 
-def test_parsimony_picks_the_simpler_model_within_one_standard_error():
-    spencer = np.array([0.10, 0.12, 0.11, 0.13])
-    # Bouc–Wen - Spencer per record: 0.01, -0.01, 0.02, -0.01; mean 0.0025, sample
-    # std 0.015, standard error 0.015/√4 = 0.0075 ≥ 0.0025: within one error.
-    bouc_wen = spencer + np.array([0.01, -0.01, 0.02, -0.01])
+def test_parsimony_picks_the_lowest_median_and_the_simpler_on_a_tie():
+    spencer = np.array([0.10, 0.12, 0.11, 0.13])  # median 0.115
+    # Worse on one record only (a badly interpolated current): the mean (0.1375)
+    # would rank it behind Bouc–Wen, the median (0.11) ahead.
+    shear = np.array([0.10, 0.11, 0.22, 0.10])
+    bouc_wen = spencer + 0.002  # median 0.117
     bingham = spencer + 0.2  # far worse on every record
-    # Given in any order; the order of simplicity decides among the close ones.
-    rule = parsimony(["spencer", "bingham", "bouc_wen"], [spencer, bingham, bouc_wen])
-    assert (rule.best, rule.chosen) == ("spencer", "bouc_wen")
-    assert rule.names == ("bingham", "bouc_wen", "spencer")
-    np.testing.assert_allclose(rule.standard_error[1:], [0.0075, 0.0], rtol=1e-12)
-    np.testing.assert_allclose(rule.mean_nrmse[1], 0.1175, rtol=1e-12)  # 0.115 + 0.0025
-    assert rule.num_records == 4 and "bouc_wen" in rule.reason
-    # Consistently worse by 0.01 (± 0.002): standard error 0.0008 < 0.01, so the
-    # better (richer) model is kept.
-    bouc_wen = spencer + np.array([0.01, 0.012, 0.008, 0.010])
-    rule = parsimony(["bouc_wen", "spencer"], [bouc_wen, spencer])
-    assert (rule.best, rule.chosen) == ("spencer", "spencer")
-    np.testing.assert_allclose(
-        rule.standard_error[0], np.std([0, 0.002, -0.002, 0], ddof=1) / 2, rtol=1e-9
+    # Given in any order: the reported order is the order of simplicity.
+    rule = parsimony(
+        ["spencer", "bingham", "shear_thinning_spencer", "bouc_wen"],
+        [spencer, bingham, shear, bouc_wen],
     )
+    assert (rule.best, rule.chosen) == ("shear_thinning_spencer",) * 2
+    assert rule.names == ("bingham", "bouc_wen", "spencer", "shear_thinning_spencer")
+    np.testing.assert_allclose(rule.median_nrmse, [0.315, 0.117, 0.115, 0.105])
+    assert rule.num_records == 4 and rule.tolerance == 0.0
+    assert "shear_thinning_spencer" in rule.reason
+    # A margin of 12 % (of the best median, 0.105: up to 0.1176) lets the simplest
+    # within it, Bouc–Wen (0.117), be chosen; 10 % (0.1155) only Spencer (0.115).
+    rule = parsimony(
+        ["spencer", "shear_thinning_spencer", "bouc_wen"],
+        [spencer, shear, bouc_wen],
+        tolerance=0.12,
+    )
+    assert (rule.best, rule.chosen) == ("shear_thinning_spencer", "bouc_wen")
+    rule = parsimony(
+        ["spencer", "shear_thinning_spencer", "bouc_wen"],
+        [spencer, shear, bouc_wen],
+        tolerance=0.10,
+    )
+    assert rule.chosen == "spencer" and "within 10%" in rule.reason
+    with pytest.raises(ValueError, match="tolerance"):
+        parsimony(["spencer"], [spencer], tolerance=-0.1)
 
 
 def test_parsimony_prefers_no_lag_and_never_a_diverged_model():
     errors = np.array([0.05, 0.07, 0.06])
     rule = parsimony(["spencer_lag", "spencer"], [errors, errors])
     assert rule.chosen == "spencer" and rule.names == ("spencer", "spencer_lag")
-    # A simpler model whose simulation diverged on one record is never chosen.
-    rule = parsimony(["dahl", "lugre"], [[0.05, np.inf, 0.06], errors + 0.001])
-    assert rule.chosen == "lugre" and rule.mean_nrmse[0] == np.inf
+    # A simpler model whose simulation diverged on one record is never chosen, even
+    # where its median would be the lowest.
+    rule = parsimony(["dahl", "lugre"], [[0.01, np.inf, 0.02], errors + 0.001])
+    assert rule.chosen == "lugre" and rule.median_nrmse[0] == np.inf
 
 
 def test_cv_folds_hold_out_levels_then_records():

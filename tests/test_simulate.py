@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 import jaxmr
+import jaxmr.metrics
 
 MOTION = jaxmr.Sine(jnp.deg2rad(3.5), 1.0)
 TS = jnp.linspace(0.0, 1.0, 201)
@@ -152,7 +153,7 @@ def test_user_defined_model_works_everywhere():
     sol = jaxmr.sweep(model, MOTION, jnp.array([0.0, 1.0]), TS)
     assert sol.state_names == ("s",)
     # Maxwell element at 1 Hz: dissipates, and more with the larger c at 1 A.
-    energy = jaxmr.energy_per_cycle(sol, 1.0)
+    energy = jaxmr.metrics.energy_per_cycle(sol, 1.0)
     assert 0 < energy[0] < energy[1]
     with pytest.raises(KeyError, match="states are"):
         sol.state("z")

@@ -15,6 +15,7 @@ import pytest
 
 import jaxmr
 import jaxmr.data
+import jaxmr.metrics
 
 from .helpers import shared_data
 
@@ -60,7 +61,7 @@ def test_damper_work_equals_the_energy_lost():
         system, 0.0, 0.5, 4.0, initial_state=q0, sampling=jaxmr.Sampling(dt=5e-4)
     )
     lost = system.energy(q0) - system.energy(sol.final_state[:4])
-    work = jaxmr.dissipated_work(sol)
+    work = jaxmr.metrics.dissipated_work(sol)
     assert float(lost) > 0.3 * float(system.energy(q0))  # it did damp
     assert float(work) == pytest.approx(float(lost), rel=1e-4)
 

@@ -19,6 +19,7 @@ import numpy as np
 import pytest
 
 import jaxmr
+import jaxmr.metrics
 
 T = 1.0
 CAR = jaxmr.passenger_car(jaxmr.passenger_car_mr_damper())
@@ -152,7 +153,7 @@ def _setup(where, space=True):
     from jaxmr._tune.space import as_tuple_where
 
     loop = (jaxmr.Sampling(dt=1e-3, delay=1), jaxmr.FixedStep(4))
-    return Setup(space, as_tuple_where(where), jaxmr.comfort, T, *loop)
+    return Setup(space, as_tuple_where(where), jaxmr.metrics.comfort, T, *loop)
 
 
 def test_tuning_gradient_matches_finite_differences():
@@ -452,7 +453,7 @@ def test_worst_share_tunes_the_worst_sample():
             c_sky,
             True,
             None,
-            jaxmr.comfort,
+            jaxmr.metrics.comfort,
             T,
             jaxmr.Sampling(dt=1e-3, delay=1),
             jaxmr.FixedStep(4),

@@ -5,12 +5,13 @@ A module per command (`demo.py`, `fit.py`, ...), each with `add_parser(subparser
 which registers its arguments, and `run(args) -> int`, which runs it; `files.py` reads
 the inputs and writes every output by one rule (never over an input, an existing file
 only with `--force`, each file whole or not at all); `errors.py` holds `CLIError`.
-`main` (here) assembles the parser, dispatches, collects the warnings, and turns a
+`main` (here) assembles the parser, sets up the persistent compilation cache
+(`cache.py`), dispatches, collects the warnings, and turns a
 `CLIError` into a message on stderr and exit status 1 (argparse's usage errors exit
 with 2), and Ctrl-C into exit status 130.
 
 The command line is a user of jaxmr's public API (`jaxmr` and its public submodules:
-`jaxmr.data`, `jaxmr.templates`, `jaxmr.scores`, `jaxmr.devices`, `jaxmr.plot`): tests/test_cli.py checks that no module here imports
+`jaxmr.data`, `jaxmr.templates`, `jaxmr.scores`, `jaxmr.metrics`, `jaxmr.devices`, `jaxmr.plot`): tests/test_cli.py checks that no module here imports
 a private jaxmr module.
 """
 
@@ -28,7 +29,7 @@ from collections.abc import Sequence
 # `jaxmr.data`, which builds on them) are imported by the commands that use them.
 import jaxmr
 
-from . import convert, demo, design, fit, predict, report
+from . import cache, convert, demo, design, fit, predict, report
 from .errors import INTERRUPTED, CLIError
 
 __all__ = ["CLIError", "main"]
@@ -53,7 +54,8 @@ def main(argv: Sequence[str | os.PathLike] | None = None) -> int:
         # Simulation loops compiled as one kernel each; for `fit`, every core an XLA
         # device, over which it splits its lanes. Only as the program: `main()`
         # called from Python, after JAX, leaves its caller's settings alone.
-        if "jax" not in sys.modules:
+        program = "jax" not in sys.modules
+        if program:
             # Imports JAX but starts no backend: the XLA flags still apply.
             from jaxmr.devices import configure_cpu
 
@@ -61,6 +63,9 @@ def main(argv: Sequence[str | os.PathLike] | None = None) -> int:
         import jax
 
         jax.config.update("jax_enable_x64", True)
+        # The persistent compilation cache (`cache.py`): by default for the program,
+        # where `jaxmr fit` then says it lives.
+        args.compilation_cache_folder = cache.configure(args.compilation_cache, program)
         with _Warnings(args.command) as args.warnings:
             return args.run(args)
     except CLIError as e:
@@ -123,4 +128,6 @@ def _parser() -> argparse.ArgumentParser:
     )
     for command in COMMANDS:
         command.add_parser(subparsers)
+    for command_parser in subparsers.choices.values():
+        cache.add_argument(command_parser)
     return parser

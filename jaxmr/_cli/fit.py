@@ -171,6 +171,13 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.out)
     replacing = plan_outputs([out], args.files + (args.holdout or []), force=args.force)
     check_writable_file(out)
+    folder = getattr(args, "compilation_cache_folder", None)
+    # Where the compiled programs are kept, which a second fit of the same shapes
+    # reads back (`cache.py`).
+    print(
+        f"compilation cache: {folder}" if folder else "compilation cache: off",
+        flush=True,
+    )
     experiments = _read(args)
     log = _FitLog(single=args.model != AUTO, terminal=sys.stdout.isatty())
     with _Interrupts() as interrupts:
@@ -650,15 +657,10 @@ def _parsimony_json(decision) -> dict | None:
         "chosen": decision.chosen,
         "reason": decision.reason,
         "num_records": decision.num_records,
+        "tolerance": decision.tolerance,
         "candidates": [
-            {
-                "template": n,
-                "mean_test_nrmse": _json_number(m),
-                "std_error": _json_number(e),
-            }
-            for n, m, e in zip(
-                decision.names, decision.mean_nrmse, decision.standard_error
-            )
+            {"template": n, "median_test_nrmse": _json_number(m)}
+            for n, m in zip(decision.names, decision.median_nrmse)
         ],
     }
 

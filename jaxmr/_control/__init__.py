@@ -9,6 +9,7 @@ from .clipped_optimal import (
     ClippedOptimal as ClippedOptimal,
     ContinuousClippedOptimal as ContinuousClippedOptimal,
 )
+from .estimator import VelocityEstimator as VelocityEstimator
 from .feedback import (
     ForceFeedback as ForceFeedback,
     feature_scales as feature_scales,
@@ -16,6 +17,8 @@ from .feedback import (
 from .groundhook import Groundhook as Groundhook, OnOffGroundhook as OnOffGroundhook
 from .hybrid import Hybrid as Hybrid
 from .lyapunov import LyapunovController as LyapunovController
+from .observer import DamperObserver as DamperObserver
+from .observer_based import ObserverBasedController as ObserverBasedController
 from .power_driven import PowerDrivenDamper as PowerDrivenDamper
 from .riccati import (
     lqr as lqr,
@@ -23,6 +26,11 @@ from .riccati import (
     solve_riccati as solve_riccati,
 )
 from .schedule import CurrentSchedule as CurrentSchedule
+from .sensors import (
+    Sensor as Sensor,
+    Sensors as Sensors,
+    realistic_sensors as realistic_sensors,
+)
 from .skyhook import OnOffSkyhook as OnOffSkyhook, Skyhook as Skyhook
 from .smooth import with_temperature as with_temperature
 from .state_space import quarter_car_state_space as quarter_car_state_space

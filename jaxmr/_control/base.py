@@ -138,4 +138,6 @@ class ConstantCurrent(AbstractController):
         )
 
     def __call__(self, measurement, state, plant):
-        return self.current + 0.0 * measurement["body_position"], state
+        # Read the clock, which every controller gets (a machine's sensors may read
+        # no position): the command takes its dtype and batch axes.
+        return self.current + 0.0 * measurement["time"], state

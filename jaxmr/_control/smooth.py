@@ -137,7 +137,8 @@ def with_temperature(controllers, temperature):
 
     Laws without one (`ConstantCurrent`) are returned unchanged, so a whole set of
     controllers can be softened for tuning and hardened (`temperature=0`) for the
-    evaluation.
+    evaluation. A controller that wraps a law (`ObserverBasedController`) has its
+    law's temperature set.
 
     **Arguments:**
 
@@ -156,7 +157,7 @@ def with_temperature(controllers, temperature):
     )
 
     def set_one(node):
-        if isinstance(node, AbstractController) and hasattr(node, "temperature"):
+        if _relaxable(node):
             # pyright does not narrow on `hasattr`.
             old = node.temperature  # pyright: ignore[reportAttributeAccessIssue]
             shape = jnp.broadcast_shapes(value.shape, jnp.shape(old))
@@ -164,6 +165,21 @@ def with_temperature(controllers, temperature):
             return eqx.tree_at(lambda c: c.temperature, node, t)
         return node
 
-    return jax.tree.map(
-        set_one, controllers, is_leaf=lambda x: isinstance(x, AbstractController)
-    )
+    # The relaxable laws as the leaves: the map descends through everything else,
+    # wrappers included, down to the laws they hold.
+    return jax.tree.map(set_one, controllers, is_leaf=_relaxable)
+
+
+def _relaxable(node) -> bool:
+    return isinstance(node, AbstractController) and hasattr(node, "temperature")
+
+
+def temperatures(controllers) -> list:
+    """The `temperature` (dimensionless) of every law in a pytree of controllers that
+    has one, wrapped laws (`ObserverBasedController.law`) included, in tree order:
+    what `with_temperature` sets. Empty when no law has a relaxation."""
+    return [
+        node.temperature  # pyright: ignore[reportAttributeAccessIssue]
+        for node in jax.tree.leaves(controllers, is_leaf=_relaxable)
+        if _relaxable(node)
+    ]

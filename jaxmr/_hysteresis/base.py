@@ -9,8 +9,8 @@ import jax
 import jax.numpy as jnp
 
 from .._current_law import is_law, resolve
-from .._custom_types import Array, Bool, Scalar, ScalarLike, State
-from .._misc import check_concrete, is_concrete
+from .._custom_types import Array, Scalar, ScalarLike, State
+from .._misc import Check, check_concrete, is_concrete
 
 # Currents at which a model with current laws is checked, evenly over the range the
 # input spans (both ends included): linear and exponential laws are extreme at the
@@ -73,23 +73,24 @@ class AbstractHysteresis(eqx.Module):
         """
         return None
 
-    def constraints(self) -> list[tuple[Bool[Array, ""], str]]:
-        """Physical-validity checks for resolved parameters: `(ok, message)` pairs.
+    def constraints(self) -> list[Check]:
+        """Physical-validity checks for resolved parameters, as
+        [`jaxmr.Check`][jaxmr.Check]s.
 
         `simulate` raises the message of any failing check; construction raises it at
         once when the parameters are concrete numbers.
         """
         return []
 
-    def checks(self) -> list[tuple[Bool[Array, ""], str]]:
+    def checks(self) -> list[Check]:
         """Every parameter finite, named, then `constraints` (resolved parameters):
         a NaN fails every comparison, and "`alpha` must be >= 0, got nan" would
         blame the sign."""
         finite = [
-            (
+            Check(
                 jnp.all(jnp.isfinite(value)),
                 f"`{name}` is NaN or infinite; give a finite number (for a current "
-                "law, finite coefficients).",
+                "law, finite coefficients)",
             )
             for name, value in zip(
                 (f.name for f in dataclasses.fields(self)), _parameters(self)
@@ -98,25 +99,25 @@ class AbstractHysteresis(eqx.Module):
         ]
         return finite + self.constraints()
 
-    def checks_over(self, lo: Scalar, hi: Scalar) -> list:
-        """`(ok, message)` pairs of `checks` at every current in [lo, hi] [A or
-        V] (`CHECK_CURRENTS` points) when a parameter is a current law: a law may meet
-        a constraint at one current and break it at another (a linear $c_0(i)$
-        negative at 0 A). The messages name the model."""
+    def checks_over(self, lo: Scalar, hi: Scalar) -> list[Check]:
+        """`checks` at `CHECK_CURRENTS` currents evenly over [lo, hi], in A (or V),
+        when a parameter is a current law: a law may meet a constraint at one current
+        and break it at another (a linear $c_0(i)$ negative at 0 A). The checks name
+        the model."""
         name = type(self).__name__
         if not any(is_law(p) for p in jax.tree.leaves(self, is_leaf=is_law)):
-            return [(ok, f"{name}: {m}") for ok, m in self.checks()]
+            return [check.named(name) for check in self.checks()]
         lo, hi = jnp.asarray(lo), jnp.asarray(hi)
-        messages = [m for _, m in self.at(lo).checks()]
+        rules = [check.rule for check in self.at(lo).checks()]
         grid = lo + (hi - lo) * jnp.linspace(0.0, 1.0, CHECK_CURRENTS, dtype=lo.dtype)
         oks = jax.vmap(
-            lambda i: jnp.stack([jnp.all(ok) for ok, _ in self.at(i).checks()])
+            lambda i: jnp.stack([jnp.all(check.ok) for check in self.at(i).checks()])
         )(grid)
         where = f"{name} (its current laws checked over the input's range)"
-        # The value a message quotes is the one at `lo`, maybe not where it failed.
+        # No value is quoted: a law's value differs from one current to the next.
         return [
-            (jnp.all(oks[:, k]), f"{where}: {m.partition(', got ')[0].rstrip('.')}.")
-            for k, m in enumerate(messages)
+            Check(jnp.all(oks[:, k]), f"{where}: {rule}")
+            for k, rule in enumerate(rules)
         ]
 
     def __check_init__(self):
@@ -128,8 +129,8 @@ class AbstractHysteresis(eqx.Module):
             return
         with jax.ensure_compile_time_eval():
             constraints = self.checks()
-        for ok, message in constraints:
-            check_concrete(ok, f"{type(self).__name__}: {message}", self)
+        for check in constraints:
+            check_concrete(check.ok, check.named(type(self).__name__).message(), self)
 
 
 def _parameters(model) -> list:

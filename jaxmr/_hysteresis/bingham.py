@@ -7,6 +7,7 @@ import jax.numpy as jnp
 
 from .._current_law import Parameter, as_parameter
 from .._custom_types import Array, Float, Scalar, State
+from .._misc import Check
 from .base import AbstractHysteresis
 
 
@@ -46,14 +47,11 @@ class Bingham(AbstractHysteresis):
 
     def constraints(self):
         return [
-            (self.f_c >= 0, f"the yield force `f_c` must be >= 0, got {self.f_c}."),
-            (
-                self.c0 >= 0,
-                f"the viscous coefficient `c0` must be >= 0, got {self.c0}.",
-            ),
-            (
+            Check(self.f_c >= 0, "the yield force `f_c` must be >= 0", self.f_c),
+            Check(self.c0 >= 0, "the viscous coefficient `c0` must be >= 0", self.c0),
+            Check(
                 self.velocity_scale >= 0,
-                "`velocity_scale` must be >= 0 (0 for the exact sign), got "
-                f"{self.velocity_scale}.",
+                "`velocity_scale` must be >= 0 (0 for the exact sign)",
+                self.velocity_scale,
             ),
         ]

@@ -7,7 +7,7 @@ import jax.numpy as jnp
 
 from .._current_law import Parameter, as_parameter, is_law
 from .._custom_types import Array, Scalar, State
-from .._misc import abs_pow
+from .._misc import Check, abs_pow
 from .base import AbstractHysteresis
 
 
@@ -93,22 +93,22 @@ class BoucWen(AbstractHysteresis):
 
     def constraints(self):
         return [
-            (self.n > 0, f"the exponent `n` must be > 0, got {self.n}."),
-            (self.A > 0, f"`A` must be > 0 (it sets the initial slope), got {self.A}."),
-            (
+            Check(self.n > 0, "the exponent `n` must be > 0", self.n),
+            Check(self.A > 0, "`A` must be > 0 (it sets the initial slope)", self.A),
+            Check(
                 self.gamma >= 0,
-                f"`gamma` must be >= 0 (a negative value generates energy), got "
-                f"{self.gamma}.",
+                "`gamma` must be >= 0 (a negative value generates energy)",
+                self.gamma,
             ),
-            (
+            Check(
                 self.alpha >= 0,
-                f"`alpha` must be >= 0 (a negative value generates energy), got "
-                f"{self.alpha}.",
+                "`alpha` must be >= 0 (a negative value generates energy)",
+                self.alpha,
             ),
-            (
+            Check(
                 self.c0 >= 0,
-                f"`c0` must be >= 0 (a negative dashpot generates energy), got "
-                f"{self.c0}.",
+                "`c0` must be >= 0 (a negative dashpot generates energy)",
+                self.c0,
             ),
         ]
 
@@ -191,18 +191,18 @@ class NormalizedBoucWen(AbstractHysteresis):
 
     def constraints(self):
         return [
-            (self.n > 0, f"the exponent `n` must be > 0, got {self.n}."),
-            (self.rho > 0, f"`rho` must be > 0, got {self.rho}."),
-            (self.sigma >= 0, f"`sigma` must be >= 0, got {self.sigma}."),
-            (
+            Check(self.n > 0, "the exponent `n` must be > 0", self.n),
+            Check(self.rho > 0, "`rho` must be > 0", self.rho),
+            Check(self.sigma >= 0, "`sigma` must be >= 0", self.sigma),
+            Check(
                 self.c0 >= 0,
-                f"`c0` must be >= 0 (a negative dashpot generates energy), got "
-                f"{self.c0}.",
+                "`c0` must be >= 0 (a negative dashpot generates energy)",
+                self.c0,
             ),
-            (
+            Check(
                 self.kappa_w >= 0,
-                f"`kappa_w` must be >= 0 (a negative value generates energy), got "
-                f"{self.kappa_w}.",
+                "`kappa_w` must be >= 0 (a negative value generates energy)",
+                self.kappa_w,
             ),
         ]
 

@@ -7,6 +7,7 @@ import jax.numpy as jnp
 
 from .._current_law import Parameter, as_parameter
 from .._custom_types import Scalar, State
+from .._misc import Check
 from .base import AbstractHysteresis
 from .bouc_wen import bouc_wen_rate
 
@@ -103,28 +104,30 @@ class BoucWenBaberNoori(AbstractHysteresis):
 
     def constraints(self):
         return [
-            (self.n > 0, f"the exponent `n` must be > 0, got {self.n}."),
-            (self.A0 > 0, f"`A0` must be > 0, got {self.A0}."),
-            (self.gamma >= 0, f"`gamma` must be >= 0, got {self.gamma}."),
-            (
+            Check(self.n > 0, "the exponent `n` must be > 0", self.n),
+            Check(self.A0 > 0, "`A0` must be > 0", self.A0),
+            Check(self.gamma >= 0, "`gamma` must be >= 0", self.gamma),
+            Check(
                 self.beta + self.gamma > 0,
-                f"`beta + gamma` must be > 0, got beta={self.beta}, gamma={self.gamma}.",
+                "`beta + gamma` must be > 0",
+                {"beta": self.beta, "gamma": self.gamma},
             ),
-            (self.k >= 0, f"`k` must be >= 0, got {self.k}."),
-            (
+            Check(self.k >= 0, "`k` must be >= 0", self.k),
+            Check(
                 (self.alpha >= 0) & (self.alpha <= 1),
-                f"`alpha` (post/pre-yield ratio) must be in [0, 1], got {self.alpha}.",
+                "`alpha` (post/pre-yield ratio) must be in [0, 1]",
+                self.alpha,
             ),
-            (
+            Check(
                 self.c >= 0,
-                f"`c` must be >= 0 (a negative dashpot generates energy), got "
-                f"{self.c}.",
+                "`c` must be >= 0 (a negative dashpot generates energy)",
+                self.c,
             ),
-            (self.psi > 0, f"`psi` must be > 0 (pinching width), got {self.psi}."),
-            (self.lam > 0, f"`lam` must be > 0, got {self.lam}."),
-            (
+            Check(self.psi > 0, "`psi` must be > 0 (pinching width)", self.psi),
+            Check(self.lam > 0, "`lam` must be > 0", self.lam),
+            Check(
                 (self.zeta_s >= 0) & (self.zeta_s < 1),
-                f"`zeta_s` must be in [0, 1) (1 pinches the loop shut), got "
-                f"{self.zeta_s}.",
+                "`zeta_s` must be in [0, 1) (1 pinches the loop shut)",
+                self.zeta_s,
             ),
         ]

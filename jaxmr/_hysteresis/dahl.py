@@ -7,6 +7,7 @@ import jax.numpy as jnp
 
 from .._current_law import Parameter, as_parameter
 from .._custom_types import Scalar, State
+from .._misc import Check
 from .base import AbstractHysteresis
 
 
@@ -44,15 +45,15 @@ class Dahl(AbstractHysteresis):
 
     def constraints(self):
         return [
-            (self.rho > 0, f"`rho` must be > 0, got {self.rho}."),
-            (
+            Check(self.rho > 0, "`rho` must be > 0", self.rho),
+            Check(
                 self.k_x >= 0,
-                f"`k_x` must be >= 0 (a negative dashpot generates energy), got "
-                f"{self.k_x}.",
+                "`k_x` must be >= 0 (a negative dashpot generates energy)",
+                self.k_x,
             ),
-            (
+            Check(
                 self.k_w >= 0,
-                f"`k_w` must be >= 0 (a negative friction force generates energy), "
-                f"got {self.k_w}.",
+                "`k_w` must be >= 0 (a negative friction force generates energy)",
+                self.k_w,
             ),
         ]

@@ -7,6 +7,7 @@ import jax.numpy as jnp
 
 from .._current_law import Parameter, as_parameter
 from .._custom_types import Scalar, State
+from .._misc import Check
 from .base import AbstractHysteresis
 
 
@@ -62,14 +63,14 @@ class LuGre(AbstractHysteresis):
 
     def constraints(self):
         return [
-            (self.sigma0 > 0, f"`sigma0` must be > 0, got {self.sigma0}."),
-            (self.sigma1 >= 0, f"`sigma1` must be >= 0, got {self.sigma1}."),
-            (
+            Check(self.sigma0 > 0, "`sigma0` must be > 0", self.sigma0),
+            Check(self.sigma1 >= 0, "`sigma1` must be >= 0", self.sigma1),
+            Check(
                 self.sigma2 >= 0,
-                f"`sigma2` must be >= 0 (a negative viscous term generates energy), "
-                f"got {self.sigma2}.",
+                "`sigma2` must be >= 0 (a negative viscous term generates energy)",
+                self.sigma2,
             ),
-            (self.F_c > 0, f"`F_c` must be > 0, got {self.F_c}."),
-            (self.F_s > 0, f"`F_s` must be > 0, got {self.F_s}."),
-            (self.v_s > 0, f"`v_s` must be > 0, got {self.v_s}."),
+            Check(self.F_c > 0, "`F_c` must be > 0", self.F_c),
+            Check(self.F_s > 0, "`F_s` must be > 0", self.F_s),
+            Check(self.v_s > 0, "`v_s` must be > 0", self.v_s),
         ]

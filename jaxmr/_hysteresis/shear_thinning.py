@@ -7,6 +7,7 @@ import jax.numpy as jnp
 
 from .._current_law import Parameter, as_parameter
 from .._custom_types import Scalar, State
+from .._misc import Check
 from .base import AbstractHysteresis
 from .spencer import (
     spencer_constraints,
@@ -87,12 +88,10 @@ class ShearThinningSpencer(AbstractHysteresis):
 
     def constraints(self):
         return spencer_constraints(self) + [
-            (
-                self.e0 >= 0,
-                f"`e0` must be >= 0 (thinning, not thickening), got {self.e0}.",
+            Check(
+                self.e0 >= 0, "`e0` must be >= 0 (thinning, not thickening)", self.e0
             ),
-            (
-                self.e1 >= 0,
-                f"`e1` must be >= 0 (thinning, not thickening), got {self.e1}.",
+            Check(
+                self.e1 >= 0, "`e1` must be >= 0 (thinning, not thickening)", self.e1
             ),
         ]

@@ -8,6 +8,7 @@ import jax.numpy as jnp
 
 from .._current_law import Parameter, as_parameter
 from .._custom_types import Scalar, State
+from .._misc import Check
 from .base import AbstractHysteresis
 from .bouc_wen import bouc_wen_rate
 
@@ -117,18 +118,19 @@ def spencer_state_bounds(model):
 
 def spencer_constraints(self):
     return [
-        (self.n > 0, f"the exponent `n` must be > 0, got {self.n}."),
-        (self.A > 0, f"`A` must be > 0, got {self.A}."),
-        (self.gamma >= 0, f"`gamma` must be >= 0, got {self.gamma}."),
-        (
+        Check(self.n > 0, "the exponent `n` must be > 0", self.n),
+        Check(self.A > 0, "`A` must be > 0", self.A),
+        Check(self.gamma >= 0, "`gamma` must be >= 0", self.gamma),
+        Check(
             self.beta + self.gamma > 0,
-            f"`beta + gamma` must be > 0, got beta={self.beta}, gamma={self.gamma}.",
+            "`beta + gamma` must be > 0",
+            {"beta": self.beta, "gamma": self.gamma},
         ),
-        (
+        Check(
             self.alpha >= 0,
-            f"`alpha` must be >= 0 (a negative value generates energy), got "
-            f"{self.alpha}.",
+            "`alpha` must be >= 0 (a negative value generates energy)",
+            self.alpha,
         ),
-        (self.c0 > 0, f"`c0` must be > 0, got {self.c0}."),
-        (self.c1 > 0, f"`c1` must be > 0, got {self.c1}."),
+        Check(self.c0 > 0, "`c0` must be > 0", self.c0),
+        Check(self.c1 > 0, "`c1` must be > 0", self.c1),
     ]

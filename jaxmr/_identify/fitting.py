@@ -226,7 +226,19 @@ def fit(
     _check_current_laws(model, experiments)
     if solver is None:
         solver = FastLevenbergMarquardt()
-    scale = column_scale(residuals, free, static, data, None)
+    # One start: the column scale from the solver's own first step, whose compiled
+    # Jacobian the fit then reuses (`column_scale`).
+    one_start = starts is None or (
+        starts == 1 if isinstance(starts, int) else len(starts) == 1
+    )
+    scale = column_scale(
+        residuals,
+        free,
+        static,
+        data,
+        None,
+        step=(solver, _scaled_residuals) if one_start else None,
+    )
     if starts is None:
         ys = jax.tree.map(lambda a: a[None], free)
     elif isinstance(starts, int):

@@ -240,7 +240,7 @@ class ModelScore:
     @property
     def mean_test_nrmse(self) -> float:
         """The mean held-out NRMSE (inf when failed or when any held-out simulation
-        diverged): the score of `select_model`'s parsimony rule."""
+        diverged), for reports: the rule (`parsimony`) uses the median."""
         if self.error is not None or self.test_nrmse.size == 0:
             return np.inf
         value = float(np.mean(self.test_nrmse))
@@ -839,81 +839,108 @@ def _complexity(name: str) -> tuple[int, bool]:
     return (order.index(base) if base in order else len(order), lag)
 
 
+# The selection rule, chosen by leave-one-dataset-out over seven dampers (the UTFSM
+# sine tests, the NEES random record, simulated tests of five preset dampers with
+# white and AR(1) noise; benchmarks/generalisation.py, `parsimony_tolerance`). Of
+# the rules replayed on the finalists' pooled per-record held-out NRMSEs (the mean,
+# the mean log and the median, each with several parsimony margins), the median with
+# no margin had the lowest worst regret on the other six datasets for every dataset
+# left out but one (where a 1 % margin tied it there and cost 2.4 % on the left-out
+# brake); leave-one-dataset-out regret: worst 2.4 %, median 0. The mean rules lost
+# 33–35 % on the UTFSM tests, where one held-out record that a rich model fitted
+# badly outweighed its better fit of the others; margins of one standard error
+# chose Dahl there. The margin stays a parameter (`parsimony(tolerance=...)`).
+PARSIMONY_TOLERANCE = 0.0
+
+
 @dataclasses.dataclass(frozen=True)
 class Parsimony:
-    """The decision of `select_model`'s parsimony rule (`parsimony`).
+    """The decision of `select_model`'s selection rule (`parsimony`).
 
-    **Attributes:** `best`: the candidate with the lowest mean held-out NRMSE;
-    `chosen`: the simplest candidate within one standard error of it; `names`,
-    `mean_nrmse`, `standard_error`: for each candidate compared (simplest first),
-    its mean held-out NRMSE and the standard error of its mean paired difference
-    from the best's (per held-out record; inf for a candidate that failed or whose
-    simulation diverged); `num_records`: how many held-out records were compared;
-    `reason`: the decision in words.
+    **Attributes:** `best`: the candidate with the lowest median held-out NRMSE;
+    `chosen`: the simplest candidate whose median is within a fraction `tolerance`
+    of the best median (the best itself when `tolerance` is 0, as by default, and
+    no simpler one ties it); `names`, `median_nrmse`: for each candidate compared
+    (simplest first), the median of its per-record held-out NRMSEs pooled over the
+    folds (inf for a candidate that failed or whose simulation diverged on a held-out
+    record); `tolerance`: the margin [fraction of the best median]; `num_records`:
+    how many held-out records were compared; `reason`: the decision in words.
     """
 
     best: str
     chosen: str
     names: tuple[str, ...]
-    mean_nrmse: tuple[float, ...]
-    standard_error: tuple[float, ...]
+    median_nrmse: tuple[float, ...]
+    tolerance: float
     num_records: int
     reason: str
 
 
-def parsimony(names: Sequence[str], errors) -> Parsimony:
-    """The one-standard-error rule: of the candidates `names` with held-out errors
-    `errors` (NRMSE, one row per candidate, one column per held-out record, the
-    same records for every candidate), the simplest (`DEFAULT_CANDIDATES`' order,
-    no lag before lag) whose mean is within one standard error of the best mean.
-    The standard error is that of the mean per-record difference from the best
-    (paired: records that are hard for every model cancel out). A candidate with a
-    non-finite error (failed, or its simulation diverged) is never chosen, unless
-    all are (then the first).
+def parsimony(
+    names: Sequence[str], errors, tolerance: float = PARSIMONY_TOLERANCE
+) -> Parsimony:
+    """`select_model`'s selection rule: of the candidates `names` with held-out errors
+    `errors` (NRMSE, one row per candidate, one column per held-out record, the same
+    records for every candidate), the simplest (`DEFAULT_CANDIDATES`' order, no lag
+    before lag) whose median is within a fraction `tolerance` of the best median
+    (default `PARSIMONY_TOLERANCE`, 0: the best, the simpler one on a tie).
+
+    The median, not the mean: one held-out record that a candidate fits badly (a
+    current between the fitted ones that its current laws interpolate poorly) must
+    not outweigh how it fits the others, and the rule has to work from a handful of
+    held-out records. Chosen, with the margin, by leave-one-dataset-out over seven
+    dampers (benchmarks/generalisation.py). A candidate with a non-finite error
+    (failed, or its simulation diverged) is never chosen, unless all are (then the
+    first).
+
+    **Arguments:** `tolerance`: the margin, a fraction of the best median (≥ 0).
 
     **Returns:** a `Parsimony`.
     """
+    if not (np.isfinite(tolerance) and tolerance >= 0):
+        raise ValueError(f"`tolerance` must be a fraction >= 0, got {tolerance!r}.")
     names = [str(n) for n in names]
     errors = np.asarray(errors, dtype=float).reshape(len(names), -1)
     finite = np.all(np.isfinite(errors), axis=1)
-    means = np.where(finite, np.mean(np.where(finite[:, None], errors, 0.0), 1), np.inf)
+    medians = np.where(
+        finite, np.median(np.where(finite[:, None], errors, 0.0), 1), np.inf
+    )
     order = sorted(range(len(names)), key=lambda k: _complexity(names[k]))
+    n = errors.shape[1]
     if not finite.any():
         return Parsimony(
             names[0],
             names[0],
             tuple(names[k] for k in order),
             tuple(np.inf for _ in order),
-            tuple(np.inf for _ in order),
-            errors.shape[1],
+            float(tolerance),
+            n,
             "no candidate has a finite held-out error",
         )
-    best = int(np.argmin(means))
-    n = errors.shape[1]
-    se = np.full(len(names), np.inf)
-    for k in np.flatnonzero(finite):
-        d = errors[k] - errors[best]
-        se[k] = float(np.std(d, ddof=1) / np.sqrt(n)) if n >= 2 else 0.0
-    within = [k for k in order if finite[k] and means[k] - means[best] <= se[k]]
-    chosen = within[0]  # the best is always within: its difference is 0
+    best = int(np.argmin(medians))
+    within = [
+        k for k in order if finite[k] and medians[k] <= (1 + tolerance) * medians[best]
+    ]
+    chosen = within[0]  # the best is always within
     if chosen == best:
         reason = (
-            f"{names[best]} has the lowest mean held-out NRMSE "
-            f"({means[best]:.4f}, {n} records); no simpler model is within one "
-            "standard error of it"
+            f"{names[best]} has the lowest median held-out NRMSE "
+            f"({medians[best]:.4f}, {n} records)"
         )
+        if tolerance > 0:
+            reason += f"; no simpler model is within {tolerance:.0%} of it"
     else:
         reason = (
-            f"{names[chosen]} (mean held-out NRMSE {means[chosen]:.4f}) is the "
-            f"simplest within one standard error ({se[chosen]:.4f}, paired over "
-            f"{n} records) of the best, {names[best]} ({means[best]:.4f})"
+            f"{names[chosen]} (median held-out NRMSE {medians[chosen]:.4f}) is the "
+            f"simplest within {tolerance:.0%} of the best, {names[best]} "
+            f"({medians[best]:.4f}, {n} records)"
         )
     return Parsimony(
         names[best],
         names[chosen],
         tuple(names[k] for k in order),
-        tuple(float(means[k]) for k in order),
-        tuple(float(se[k]) for k in order),
+        tuple(float(medians[k]) for k in order),
+        float(tolerance),
         n,
         reason,
     )
@@ -938,13 +965,14 @@ def select_model(
     Every candidate is screened and the finalists fitted on the first fold of
     `cv_folds` (as `compare_models`); the finalists are then fitted on each other
     fold (stage `"cv"`, from their template), and each one's per-record held-out
-    NRMSEs are pooled over the folds. The parsimony rule (`parsimony`) chooses the
-    simplest finalist (Bingham < Dahl < LuGre < Bouc–Wen < Spencer < shear-thinning
-    Spencer, without an input lag before with one) whose mean pooled NRMSE is within
-    one standard error of the best's. These defaults (the folds, the screening's
-    `SCREEN_KEEP_RATIO`, the rule; `jaxmr.templates.default_candidates` for the
-    candidates) were chosen from a six-dataset table (benchmarks/README.md,
-    "generalisation"), not yet by a finished leave-one-dataset-out.
+    NRMSEs are pooled over the folds. The rule (`parsimony`) chooses the finalist
+    with the lowest median pooled NRMSE, the simplest (Bingham < Dahl < LuGre <
+    Bouc–Wen < Spencer < shear-thinning Spencer, without an input lag before with
+    one) on a tie or within `PARSIMONY_TOLERANCE` of it. The rule and its margin
+    were chosen by leave-one-dataset-out over seven dampers (benchmarks/README.md,
+    "generalisation"); the folds, the screening's `SCREEN_KEEP_RATIO` and the
+    candidates (`jaxmr.templates.default_candidates`) from a six-dataset table, not
+    yet by leave-one-dataset-out.
 
     **Arguments:**
 
@@ -1210,7 +1238,7 @@ def _cross_validate(names_or_models, scores, others, report, stop, fit_kwargs):
             ]
         ),
     )
-    finalists.sort(key=lambda s: (s.name != decision.chosen, s.mean_test_nrmse))
+    finalists.sort(key=lambda s: (s.name != decision.chosen, s.median_test_nrmse))
     return finalists + rest, decision
 
 

@@ -33,7 +33,8 @@ class _LMState(eqx.Module):
     y_eval: Array  # the trial point (flat)
     radius: Float[Array, ""]  # the trust region as a step size: λ = 1/radius
     residual: Array  # at the last accepted point
-    jacobian: Array  # at the last accepted point, (residuals, variables)
+    gram: Array  # JᵀJ there, (variables, variables)
+    gradient: Array  # Jᵀr there, (variables,)
     aux: Any
     terminate: Bool[Array, ""]
     result: optx.RESULTS
@@ -50,13 +51,24 @@ class FastLevenbergMarquardt(optx.AbstractLeastSquaresSolver):
     61 steps). Here the trial point's residual is evaluated first and the Jacobian, by
     one forward-mode pass (`jax.jacfwd`, all columns at once), only where the step is
     accepted. The step and the trust-region rule are optimistix's
-    (`DampedNewtonDescent`, `ClassicalTrustRegion`): the damped Gauss–Newton step from
-    a QR solve of $[J; \sqrt{\lambda} I]\,\delta = [r; 0]$, λ = 1/radius;
-    a step is accepted when it achieves 1 % of the predicted reduction, and the radius
+    (`DampedNewtonDescent`, `ClassicalTrustRegion`): the damped Gauss–Newton step
+    $(J^\top J + \lambda I)\,\delta = J^\top r$, λ = 1/radius, the least-squares
+    solution of $[J; \sqrt{\lambda} I]\,\delta = [r; 0]$; a step is accepted when it achieves 1 % of the predicted reduction, and the radius
     grows 10x (optimistix: 3.5x) after one that achieves 75 % (optimistix: 99 %) and
     shrinks 4x after a rejection. From starts far from the optimum (the published UTFSM
     model, a 12-parameter Spencer fit) optimistix's constants crept for 30+ steps
     before the damping had relaxed: 47 instead of 80+ steps to the same optimum.
+
+    The step is solved from $J^\top J$ and $J^\top r$ (p × p and p, formed by XLA
+    where the Jacobian is), through the eigendecomposition of $J^\top J$, with λ at
+    least `MIN_DAMPING` × its largest eigenvalue (below that the normal equations'
+    rounding, ~1e-16 of it, would decide the step). A QR factorisation of the tall
+    $[J; \sqrt{\lambda} I]$ (optimistix's, lineax's) is a LAPACK call on the whole
+    Jacobian inside the program that simulates: on a CPU, OpenBLAS's worker threads,
+    which spin for a while after each call, then competed with XLA's for the cores, and
+    a step of the Bouc–Wen benchmark (6 parameters, 8192 residuals, 2 cores) took
+    3x its residual and Jacobian (0.14 s against 0.045 s). The state then holds no
+    n × p Jacobian either.
 
     A member of a batch (`jax.vmap` with `axis_name`, as `jaxmr.fit` runs its starts)
     computes its Jacobian when any member accepted.
@@ -86,7 +98,8 @@ class FastLevenbergMarquardt(optx.AbstractLeastSquaresSolver):
             y_eval=flat,
             radius=jnp.array(1.0, flat.dtype),
             residual=residual,
-            jacobian=jnp.zeros((residual.size, flat.size), flat.dtype),
+            gram=jnp.zeros((flat.size, flat.size), flat.dtype),
+            gradient=jnp.zeros(flat.size, flat.dtype),
             aux=jax.tree.map(unset, aux_struct),
             terminate=jnp.array(False),
             result=optx.RESULTS.successful,
@@ -101,12 +114,10 @@ class FastLevenbergMarquardt(optx.AbstractLeastSquaresSolver):
 
         r_eval, aux_eval = residual_fn(state.y_eval)
         loss, loss_eval = _half_sum_squares(state.residual), _half_sum_squares(r_eval)
-        # optimistix's ClassicalTrustRegion: the linear model's predicted change.
+        # optimistix's ClassicalTrustRegion: the linear model's predicted change,
+        # ½‖J d + r‖² − ½‖r‖² = ½ dᵀ(JᵀJ)d + dᵀ(Jᵀr).
         diff = state.y_eval - flat
-        predicted = 0.5 * (
-            jnp.sum((state.jacobian @ diff + state.residual) ** 2)
-            - jnp.sum(state.residual**2)
-        )
+        predicted = 0.5 * diff @ (state.gram @ diff) + diff @ state.gradient
         change = loss_eval - loss
         accept = state.first_step | (change <= 0.01 * predicted)
         good = (change < 0.75 * predicted) & (predicted < 0) & ~state.first_step
@@ -124,14 +135,19 @@ class FastLevenbergMarquardt(optx.AbstractLeastSquaresSolver):
                 r, _ = residual_fn(x)
                 return r, r
 
-            return jax.jacfwd(both, has_aux=True)(x)[0]
+            jacobian, r = jax.jacfwd(both, has_aux=True)(x)
+            return jacobian.T @ jacobian, jacobian.T @ r
 
-        jacobian = jax.lax.cond(
-            any_accept, linearise, lambda x: state.jacobian, state.y_eval
+        gram, gradient = jax.lax.cond(
+            any_accept,
+            linearise,
+            lambda x: (state.gram, state.gradient),
+            state.y_eval,
         )
         new_y = jnp.where(accept, state.y_eval, flat)
         residual = jnp.where(accept, r_eval, state.residual)
-        jacobian = jnp.where(accept, jacobian, state.jacobian)
+        gram = jnp.where(accept, gram, state.gram)
+        gradient = jnp.where(accept, gradient, state.gradient)
         aux = jax.tree.map(lambda a, b: jnp.where(accept, a, b), aux_eval, state.aux)
         # optimistix's Cauchy test, on accepted steps.
         y_scale = self.atol + self.rtol * jnp.abs(state.y_eval)
@@ -143,14 +159,12 @@ class FastLevenbergMarquardt(optx.AbstractLeastSquaresSolver):
             & (self.norm(jnp.abs(r_eval - state.residual) / f_scale) < 1)
         )
         # The damped Gauss–Newton step from the new point (optimistix's
-        # `damped_newton_step`): least squares on [J; sqrt(λ) I] δ = [r; 0].
-        # A reduced QR (what lineax's `QR` solver does for a tall matrix), written
-        # with jax.numpy: inside `shard_map` (`fit_each`'s chunks) lineax refused the
-        # vector, whose structure carries the mesh's sharding and the operator's not.
-        # The factorisation and the triangular solve take one member at a time (see
-        # `_one_matrix_at_a_time`); the product between them stays batched.
-        q, upper = _damped_qr(jacobian, 1.0 / radius)
-        step = _solve_upper(upper, q[: residual.size].T @ residual)
+        # `damped_newton_step`), from the p × p normal equations (see the class's
+        # docstring), written with jax.numpy: inside `shard_map` (`fit_each`'s
+        # chunks) lineax refused the vector, whose structure carries the mesh's
+        # sharding and the operator's not. The eigendecomposition takes one member
+        # at a time (see `_one_matrix_at_a_time`).
+        step = _damped_step(gram, gradient, 1.0 / radius)
         result = optx.RESULTS.where(
             jnp.all(jnp.isfinite(step)),
             optx.RESULTS.successful,
@@ -162,7 +176,8 @@ class FastLevenbergMarquardt(optx.AbstractLeastSquaresSolver):
             y_eval=y_eval,
             radius=radius,
             residual=residual,
-            jacobian=jacobian,
+            gram=gram,
+            gradient=gradient,
             aux=aux,
             terminate=terminate,
             result=result,
@@ -194,16 +209,20 @@ def _one_matrix_at_a_time(fn):
     return jax.custom_batching.sequential_vmap(fn)
 
 
-@_one_matrix_at_a_time
-def _damped_qr(jacobian, lam):
-    r"""The reduced QR of $[J; \sqrt{\lambda} I]$."""
-    eye = jnp.eye(jacobian.shape[1], dtype=jacobian.dtype)
-    return jnp.linalg.qr(jnp.concatenate([jacobian, jnp.sqrt(lam) * eye]))
+# The least damping λ, relative to the largest eigenvalue of JᵀJ: the eigenvalues are
+# known to ~1e-16 of it, so a smaller λ would let rounding decide the step along
+# directions the data barely see (their relative accuracy is then still ~1e-4).
+MIN_DAMPING = 1e-12
 
 
 @_one_matrix_at_a_time
-def _solve_upper(upper, b):
-    return jax.scipy.linalg.solve_triangular(upper, b, lower=False)
+def _damped_step(gram, gradient, lam):
+    r"""$\delta = (J^\top J + \lambda I)^{-1} J^\top r$ from `gram` $= J^\top J$ and
+    `gradient` $= J^\top r$, λ at least `MIN_DAMPING` × the largest eigenvalue."""
+    w, v = jnp.linalg.eigh(gram)
+    w = jnp.maximum(w, 0.0)  # JᵀJ is positive semi-definite; rounding is not
+    lam = jnp.maximum(lam, MIN_DAMPING * w[-1])
+    return v @ ((v.T @ gradient) / (w + lam))
 
 
 def _size(struct) -> int:
@@ -218,20 +237,49 @@ def _half_sum_squares(r):
 # Column scaling
 
 
-def column_scale(residuals_fn, free, static, data, extra):
+def column_scale(residuals_fn, free, static, data, extra, *, step=None):
     """Per free variable, 1/(norm of its Jacobian column) at the start.
 
     optimistix's Levenberg–Marquardt damps with λ·I, which suits unit-norm columns;
     a model's sensitivities span decades (log C0a against log α for the brake), and
     unscaled it crept along the valley for ~3x more steps.
+
+    `step`: `(solver, scaled_residuals)` where `iterate` will then step one start
+    with that solver on `(scaled_residuals, static, data, scale)`: for a
+    `FastLevenbergMarquardt` the norms are read from JᵀJ after the solver's own
+    first step at the start with unit scale (`_first_step_norms`), so that the fit
+    compiles its Jacobian once, in the step that it then reuses, instead of a second
+    time here (the 14-parameter UTFSM fit: a third of its compilation). Otherwise,
+    and for other solvers, from the residual's own Jacobian.
     """
-    _, jac = value_and_jacobian_jit(residuals_fn, free, static, data, extra)
-    norms = jax.tree.map(lambda j: jnp.sqrt(jnp.sum(j**2, axis=0)), jac)
+    if step is not None and isinstance(step[0], FastLevenbergMarquardt):
+        solver, scaled_residuals = step
+        norms = _first_step_norms(solver, scaled_residuals, free, static, data)
+    else:
+        _, jac = value_and_jacobian_jit(residuals_fn, free, static, data, extra)
+        norms = jax.tree.map(lambda j: jnp.sqrt(jnp.sum(j**2, axis=0)), jac)
     largest = max(float(jnp.max(n)) for n in jax.tree.leaves(norms))
     # A variable the data barely see (an effect below the noise) is not magnified more
     # than 100x: unbounded, its huge steps sent such a parameter to zero.
     floor = max(1e-2 * largest, 1e-300)
     return jax.tree.map(lambda n: 1.0 / jnp.maximum(n, floor), norms)
+
+
+def _first_step_norms(solver, scaled_residuals, free, static, data):
+    """The Jacobian's column norms at `free` from one step of `solver` from there with
+    unit scale: the arguments of `iterate`'s first step for one start, shapes and
+    types included, so that the compiled `_init` and `_step` are those it reuses."""
+    unit = jax.tree.map(lambda a: jnp.ones(jnp.shape(a), jnp.result_type(a)), free)
+    ys = divide(jax.tree.map(lambda a: a[None], free), unit)
+    args = (scaled_residuals, static, data, unit)
+    solver = _batch_solver(solver, ys, None, None)
+    dynamic, static_state = eqx.partition(
+        _init(solver, ys, args, None, None, None), eqx.is_array
+    )
+    _, dynamic, *_ = _step(solver, ys, dynamic, static_state, args, None, None, None)
+    # The first step accepts the start: its JᵀJ is the start's, columns unscaled.
+    _, unravel = ravel_pytree(free)
+    return unravel(jnp.sqrt(jnp.diagonal(dynamic.gram[0])))
 
 
 def divide(ys, scale):
@@ -374,8 +422,16 @@ def _over_batch(one, members, args, data_axis, chunk, mesh):
     devices and processes, so each member's result is the same bits in every layout.
     (One vmap over the whole batch is not: 256 brake fits in one process and 128 in
     each of two differed in the last bits, and a fit on a flat valley then ended
-    elsewhere.)"""
+    elsewhere.)
+
+    A batch of one without `chunk` (a fit from one start) runs unbatched, its outputs
+    given the batch axis after: under `vmap` a batch of one simulated 1.5-3x slower
+    (the Bouc–Wen benchmark's residual 8 ms against 23 ms, its Jacobian 35 ms against
+    50 ms)."""
     fn, static, data, extra = args
+    if _unbatched(members, data_axis, chunk):
+        out = one(*jax.tree.map(lambda a: a[0], members), (fn, static, data, extra))
+        return jax.tree.map(lambda a: a[None] if eqx.is_array(a) else a, out)
 
     def run(members, data, extra):
         return eqx.filter_vmap(
@@ -421,6 +477,29 @@ def _over_batch(one, members, args, data_axis, chunk, mesh):
     return eqx.combine(out, out_static[0])
 
 
+def _batch_solver(solver, ys, data_axis, chunk):
+    """`solver` as `iterate` steps the batch `ys` with it: a `FastLevenbergMarquardt`
+    given the batch's axis name, so that a member's Jacobian is computed when any
+    member accepted its step (`replace`: a subclass stays itself), or none for a
+    batch of one, which runs unbatched (`_over_batch`)."""
+    if not isinstance(solver, FastLevenbergMarquardt):
+        return solver
+    unbatched = _unbatched((ys,), data_axis, chunk)
+    if unbatched or solver.axis_name is None:
+        solver = dataclasses.replace(solver, axis_name=None if unbatched else BATCH)
+    return solver
+
+
+def _unbatched(members, data_axis, chunk) -> bool:
+    """Whether `_over_batch` runs `members` unbatched: one member, its data shared,
+    no chunks."""
+    return (
+        chunk is None
+        and data_axis is None
+        and (jax.tree.leaves(members)[0].shape[0] == 1)
+    )
+
+
 # A member has also stalled when this many *accepted* steps (steps that lowered its
 # loss) since its last gain of a relative `ftol` have not made another. Rejected steps only
 # shrink the trust region and may still lead somewhere (`patience` bounds those), but
@@ -458,10 +537,7 @@ def iterate(
     Returns the best ys and one `Outcome` per member (its best loss, the history of
     the batch's best loss, the steps taken, its `StopReason`).
     """
-    if isinstance(solver, FastLevenbergMarquardt) and solver.axis_name is None:
-        # A member's Jacobian is then computed when any member accepted its step
-        # (`replace`: a subclass stays itself).
-        solver = dataclasses.replace(solver, axis_name=BATCH)
+    solver = _batch_solver(solver, ys, data_axis, chunk)
     dynamic, static_state = eqx.partition(
         _init(solver, ys, args, data_axis, chunk, mesh), eqx.is_array
     )

@@ -197,7 +197,7 @@ def _validity(system) -> Array:
     )
     if not checks:
         return jnp.array(True)
-    return jnp.all(jnp.stack([jnp.asarray(ok) for ok, _ in checks]))
+    return jnp.all(jnp.stack([jnp.asarray(check.ok) for check in checks]))
 
 
 def _simulate_records(system, data: _SystemData, sim: _Simulation):

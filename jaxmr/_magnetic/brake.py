@@ -11,6 +11,7 @@ from .._current_law import LinearLaw, Parameter, as_parameter
 from .._custom_types import Array, ArrayLike, Float, Scalar, ScalarLike, State
 from .._damper import Damper
 from .._hysteresis import AbstractHysteresis
+from .._misc import Check
 from .material import HodgdonMaterial, smooth_sign
 from .stage import MagneticStage
 
@@ -81,20 +82,19 @@ class BinghamDisc(AbstractHysteresis):
 
     def constraints(self):
         return [
-            (
+            Check(
                 (self.R_i >= 0) & (self.R_o > self.R_i),
-                f"the radii must satisfy 0 <= R_i < R_o (m), got R_i = {self.R_i}, "
-                f"R_o = {self.R_o}.",
+                "the radii must satisfy 0 <= R_i < R_o (m)",
+                {"R_i": self.R_i, "R_o": self.R_o},
             ),
-            (self.gap > 0, f"`gap` must be > 0 (m), got {self.gap}."),
-            (
-                self.viscosity >= 0,
-                f"`viscosity` must be >= 0 (Pa s), got {self.viscosity}.",
+            Check(self.gap > 0, "`gap` must be > 0 (m)", self.gap),
+            Check(
+                self.viscosity >= 0, "`viscosity` must be >= 0 (Pa s)", self.viscosity
             ),
-            (
+            Check(
                 self.velocity_scale >= 0,
-                "`velocity_scale` must be >= 0 (0 for the exact sign), got "
-                f"{self.velocity_scale}.",
+                "`velocity_scale` must be >= 0 (0 for the exact sign)",
+                self.velocity_scale,
             ),
         ]
 

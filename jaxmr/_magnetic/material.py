@@ -15,8 +15,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._current_law import as_parameter
-from .._custom_types import Array, ArrayLike, Bool, Float, Scalar, ScalarLike
-from .._misc import as_float_array, check_concrete, is_concrete, rk4_step
+from .._custom_types import Array, ArrayLike, Float, Scalar, ScalarLike
+from .._misc import Check, as_float_array, check_concrete, is_concrete, rk4_step
 
 MU_0 = 4e-7 * math.pi  # vacuum permeability [H/m]
 
@@ -75,28 +75,30 @@ class HodgdonMaterial(eqx.Module):
             return
         with jax.ensure_compile_time_eval():
             constraints = self.constraints()
-        for ok, message in constraints:
-            check_concrete(ok, f"HodgdonMaterial: {message}", self)
+        for check in constraints:
+            check_concrete(check.ok, check.named("HodgdonMaterial").message(), self)
 
-    def constraints(self) -> list[tuple[Bool[Array, ""], str]]:
-        """Validity checks `(ok, message)` of the parameters."""
+    def constraints(self) -> list[Check]:
+        """Validity checks of the parameters."""
         return [
-            (self.A1 > 0, f"`A1` must be > 0 (in A/m), got {self.A1}."),
-            (self.A2 > 0, f"`A2` must be > 0 (in 1/T), got {self.A2}."),
-            (
+            Check(self.A1 > 0, "`A1` must be > 0 (in A/m)", self.A1),
+            Check(self.A2 > 0, "`A2` must be > 0 (in 1/T)", self.A2),
+            Check(
                 self.A2 * self.B_s < jnp.pi / 2,
-                "`A2 * B_s` must be < pi/2 so that f(B) = A1 tan(A2 B) stays finite up "
-                f"to the closure induction, got {self.A2 * self.B_s}.",
+                "`A2 * B_s` must be < pi/2 so that f(B) = A1 tan(A2 B) stays finite "
+                "up to the closure induction",
+                self.A2 * self.B_s,
             ),
-            (
+            Check(
                 self.A3 < 1,
-                f"`A3` must be < 1 so that g(B) > 0 (negative for a loop of the usual "
-                f"orientation), got {self.A3}.",
+                "`A3` must be < 1 so that g(B) > 0 (negative for a loop of the usual "
+                "orientation)",
+                self.A3,
             ),
-            (self.A4 >= 0, f"`A4` must be >= 0, got {self.A4}."),
-            (self.alpha_h > 0, f"`alpha_h` must be > 0 (in 1/T), got {self.alpha_h}."),
-            (self.B_s > 0, f"`B_s` must be > 0 (in T), got {self.B_s}."),
-            (self.mu_s > 0, f"`mu_s` must be > 0 (in H/m), got {self.mu_s}."),
+            Check(self.A4 >= 0, "`A4` must be >= 0", self.A4),
+            Check(self.alpha_h > 0, "`alpha_h` must be > 0 (in 1/T)", self.alpha_h),
+            Check(self.B_s > 0, "`B_s` must be > 0 (in T)", self.B_s),
+            Check(self.mu_s > 0, "`mu_s` must be > 0 (in H/m)", self.mu_s),
         ]
 
     # -- material functions ----------------------------------------------------------

@@ -27,8 +27,8 @@ import jax.numpy as jnp
 
 from .._current_dynamics import AbstractCurrentDynamics
 from .._current_law import as_parameter
-from .._custom_types import Array, ArrayLike, Bool, Float, Scalar, ScalarLike, State
-from .._misc import as_float_array, check_concrete, is_concrete
+from .._custom_types import Array, ArrayLike, Float, Scalar, ScalarLike, State
+from .._misc import Check, as_float_array, check_concrete, is_concrete
 from .material import (
     MU_0,
     HodgdonMaterial,
@@ -115,38 +115,42 @@ class MagneticStage(AbstractCurrentDynamics):
             return
         with jax.ensure_compile_time_eval():
             constraints = self.constraints()
-        for ok, message in constraints:
-            check_concrete(ok, f"MagneticStage: {message}", self)
+        for check in constraints:
+            check_concrete(check.ok, check.named("MagneticStage").message(), self)
 
-    def constraints(self) -> list[tuple[Bool[Array, ""], str]]:
+    def constraints(self) -> list[Check]:
         N = self.demagnetising_factor
         return [
-            (
+            Check(
                 self.coil_constant > 0,
-                f"`coil_constant` must be > 0 (field per ampere, 1/m), got "
-                f"{self.coil_constant}.",
+                "`coil_constant` must be > 0 (field per ampere, 1/m)",
+                self.coil_constant,
             ),
-            (
+            Check(
                 (N >= 0) & (N < 1),
-                f"`demagnetising_factor` must be in [0, 1) (SI; N_d/(4 pi) of a "
-                f"Gaussian source), got {N}.",
+                "`demagnetising_factor` must be in [0, 1) (SI; N_d/(4 pi) of a "
+                "Gaussian source)",
+                N,
             ),
-            (
+            Check(
                 self.flux_ratio > 0,
-                f"`flux_ratio` (steel/gap area) must be > 0, got {self.flux_ratio}.",
+                "`flux_ratio` (steel/gap area) must be > 0",
+                self.flux_ratio,
             ),
-            (
+            Check(
                 self.coil_rate > 0,
-                f"`coil_rate` must be > 0 (R/L of the coil, 1/s), got {self.coil_rate}.",
+                "`coil_rate` must be > 0 (R/L of the coil, 1/s)",
+                self.coil_rate,
             ),
-            (
+            Check(
                 self.induction_per_current > 0,
-                "`induction_per_current` must be > 0 (T/A), got "
-                f"{self.induction_per_current}.",
+                "`induction_per_current` must be > 0 (T/A)",
+                self.induction_per_current,
             ),
-            (
+            Check(
                 self.sign_scale >= 0,
-                f"`sign_scale` must be >= 0 (0: exact sign), got {self.sign_scale}.",
+                "`sign_scale` must be >= 0 (0: exact sign)",
+                self.sign_scale,
             ),
         ] + self.material.constraints()
 

@@ -6,8 +6,9 @@ from typing import ClassVar
 import equinox as eqx
 import jax.numpy as jnp
 
-from .._custom_types import Array, Bool, Scalar, State
+from .._custom_types import Scalar, State
 from .._damper import Damper
+from .._misc import Check
 from .._signal import AbstractSignal
 
 # The names every system's `measure` returns, so one controller serves every machine.
@@ -76,7 +77,7 @@ class AbstractSystem(eqx.Module):
         excitation still, its fall over a run equals the work the damper and the
         system's own dampers dissipated."""
 
-    def constraints(self) -> list[tuple[Bool[Array, ""], str]]:
-        """Validity checks `(ok, message)` on the parameters (concrete ones are checked
-        at construction, traced ones when simulated)."""
+    def constraints(self) -> list[Check]:
+        """Validity checks of the parameters ([`jaxmr.Check`][jaxmr.Check]s; concrete
+        ones are checked at construction, traced ones when simulated)."""
         return []

@@ -7,7 +7,7 @@ import jax.numpy as jnp
 
 from .._custom_types import Array, Float, Scalar, State
 from .._damper import Damper, as_damper
-from .._misc import as_float_array, check_concrete, is_concrete
+from .._misc import Check, as_float_array, check_concrete, is_concrete
 from .._signal import AbstractSignal
 from .base import AbstractSystem
 
@@ -64,19 +64,20 @@ class QuarterCar(AbstractSystem):
                 f"{self.excitation!r}."
             )
         if is_concrete(self.ms, self.mu, self.ks, self.kt, self.cs, self.ct):
-            for ok, message in self.constraints():
-                check_concrete(ok, f"QuarterCar: {message}", self.ms)
+            for check in self.constraints():
+                check_concrete(check.ok, check.named("QuarterCar").message(), self.ms)
 
     def constraints(self):
         return [
-            (self.ms > 0, f"the body mass `ms` must be > 0 kg, got {self.ms}."),
-            (self.mu > 0, f"the wheel mass `mu` must be > 0 kg, got {self.mu}."),
-            (self.ks > 0, f"the spring `ks` must be > 0 N/m, got {self.ks}."),
-            (self.kt > 0, f"the tyre stiffness `kt` must be > 0 N/m, got {self.kt}."),
-            (
+            Check(self.ms > 0, "the body mass `ms` must be > 0 kg", self.ms),
+            Check(self.mu > 0, "the wheel mass `mu` must be > 0 kg", self.mu),
+            Check(self.ks > 0, "the spring `ks` must be > 0 N/m", self.ks),
+            Check(self.kt > 0, "the tyre stiffness `kt` must be > 0 N/m", self.kt),
+            Check(
                 (self.cs >= 0) & (self.ct >= 0),
-                "damping `cs` and `ct` must be >= 0 N·s/m (negative damping makes "
-                f"the car unstable), got cs={self.cs}, ct={self.ct}.",
+                "damping `cs` and `ct` must be >= 0 N·s/m (negative damping makes the "
+                "car unstable)",
+                {"cs": self.cs, "ct": self.ct},
             ),
         ]
 

@@ -90,7 +90,7 @@ from .._custom_types import Array, Float, Scalar, ScalarLike, State
 from .._damper import Damper, as_damper
 from .._hysteresis import BoucWen
 from .._metrics import settling_time
-from .._misc import as_float_array, check_concrete, is_concrete
+from .._misc import Check, as_float_array, check_concrete, is_concrete
 from .._presets import sas_brake_bouc_wen
 from .base import AbstractSystem
 
@@ -182,8 +182,8 @@ class SASRig(AbstractSystem):
     def __check_init__(self):
         arrays = [getattr(self, name) for name in (*_POSITIVE, *_NON_NEGATIVE)]
         if is_concrete(*arrays, self.beta, self.g):
-            for ok, message in self.constraints():
-                check_concrete(ok, f"SASRig: {message}", *arrays)
+            for check in self.constraints():
+                check_concrete(check.ok, check.named("SASRig").message(), *arrays)
 
     # -- validity ---------------------------------------------------------------------
 
@@ -194,37 +194,39 @@ class SASRig(AbstractSystem):
         checks = []
         for name, unit in _POSITIVE.items():
             value = getattr(self, name)
-            checks.append((value > 0, f"`{name}` must be > 0 {unit}, got {value}."))
+            checks.append(Check(value > 0, f"`{name}` must be > 0 {unit}", value))
         for name, unit in _NON_NEGATIVE.items():
             value = getattr(self, name)
             checks.append(
-                (
+                Check(
                     value >= 0,
-                    f"`{name}` must be >= 0 {unit} (negative friction or damping "
-                    f"feeds energy in), got {value}.",
+                    f"`{name}` must be >= 0 {unit} (negative friction or damping feeds "
+                    "energy in)",
+                    value,
                 )
             )
-        checks.append((self.g >= 0, f"gravity `g` must be >= 0 m/s², got {self.g}."))
+        checks.append(Check(self.g >= 0, "gravity `g` must be >= 0 m/s²", self.g))
         for j, m, c in (("J1", "m1", "c1"), ("J2", "m2", "c2")):
             inertia, mass, arm = getattr(self, j), getattr(self, m), getattr(self, c)
             checks.append(
-                (
+                Check(
                     inertia >= mass * arm**2,
-                    f"`{j}` = {inertia} kg·m² is below `{m}`·`{c}`² = "
-                    f"{mass * arm**2} kg·m²: a beam's inertia about the pivot is at "
-                    "least its mass times the square of its centre of mass's distance "
-                    "(parallel-axis theorem); raise the inertia or move the centre "
-                    "of mass in.",
+                    f"`{j}` [kg·m²] must be at least `{m}`·`{c}`²: a beam's inertia "
+                    "about the pivot is at least its mass times the square of its "
+                    "centre of mass's distance (parallel-axis theorem); raise the "
+                    "inertia or move the centre of mass in",
+                    {j: inertia, f"{m}·{c}²": mass * arm**2},
                 )
             )
         reach = jnp.abs(self.Dx - self.l0g - self.r) < self.R
         checks.append(
-            (
+            Check(
                 reach,
                 "impossible geometry: the wheel cannot reach the cam, |Dx - l0g - r| "
-                f"= {jnp.abs(self.Dx - self.l0g - self.r)} m must be < R = {self.R} m "
-                "(the cam shaft is `Dx` below the pivot, the wheel centre `R` from "
-                "it); move the cam up (smaller `Dx`) or lengthen the wheel arm `R`.",
+                "must be < R [m] (the cam shaft is `Dx` below the pivot, the wheel "
+                "centre `R` from it); move the cam up (smaller `Dx`) or lengthen the "
+                "wheel arm `R`",
+                {"|Dx - l0g - r|": jnp.abs(self.Dx - self.l0g - self.r), "R": self.R},
             )
         )
         q, grad, hessian, compression, length = _rest_diagnostics(self)
@@ -232,34 +234,35 @@ class SASRig(AbstractSystem):
         converged = jnp.all(jnp.abs(grad) < 1e-6 * scale)
         stable = (hessian[0, 0] > 0) & (jnp.linalg.det(hessian) > 0)
         checks += [
-            (
+            Check(
                 converged,
                 "impossible geometry: no static equilibrium found with the cam at "
-                "mid-lift (check that the spring `ks`, `l0s`, `r1`, `r2` can hold "
-                "the body's weight m2·g·c2 and that the wheel rests on the cam).",
+                "mid-lift (check that the spring `ks`, `l0s`, `r1`, `r2` can hold the "
+                "body's weight m2·g·c2 and that the wheel rests on the cam)",
             ),
-            (
+            Check(
                 (compression > 0) | ~converged,
                 "impossible geometry: at rest the wheel does not touch the cam (tyre "
                 "compression <= 0); move the cam up (smaller `Dx`) or give it a "
-                "larger radius `l0g`.",
+                "larger radius `l0g`",
             ),
-            (
+            Check(
                 (length > 0.05 * self.l0s) | ~converged,
-                "impossible geometry: at rest the spring is squeezed to (almost) "
-                "zero length; lengthen `l0s` or move the mounts `r1`, `r2`.",
+                "impossible geometry: at rest the spring is squeezed to (almost) zero "
+                "length; lengthen `l0s` or move the mounts `r1`, `r2`",
             ),
-            (
+            Check(
                 (jnp.abs(q[1]) < 60 * _DEG) | ~converged,
-                "the spring cannot hold the body up: it rests at alpha2 = "
-                f"{jnp.rad2deg(q[1])}° (more than 60° from level); stiffen `ks` or "
-                "lengthen `l0s` (the spring carries m2·g·c2 at rest).",
+                "the spring cannot hold the body up: its rest angle alpha2 [°] must "
+                "be within 60° of level; stiffen `ks` or lengthen `l0s` (the spring "
+                "carries m2·g·c2 at rest)",
+                jnp.rad2deg(q[1]),
             ),
-            (
+            Check(
                 stable | ~converged,
                 "the static equilibrium is unstable (the potential's Hessian is not "
                 "positive definite): stiffen the spring `ks` or lower the centres of "
-                "mass.",
+                "mass",
             ),
         ]
         return checks

@@ -7,7 +7,7 @@ import jax.numpy as jnp
 
 from .._custom_types import Array, Float
 from .._damper import Damper, as_damper
-from .._misc import as_float_array, check_concrete, is_concrete
+from .._misc import Check, as_float_array, check_concrete, is_concrete
 from .base import AbstractSystem
 
 
@@ -40,17 +40,15 @@ class SingleDegreeOfFreedom(AbstractSystem):
 
     def __check_init__(self):
         if is_concrete(self.mass, self.damping, self.stiffness):
-            for ok, message in self.constraints():
-                check_concrete(ok, f"SingleDegreeOfFreedom: {message}", self.mass)
+            for check in self.constraints():
+                message = check.named("SingleDegreeOfFreedom").message()
+                check_concrete(check.ok, message, self.mass)
 
     def constraints(self):
         return [
-            (self.mass > 0, f"`mass` must be > 0 kg, got {self.mass}."),
-            (self.damping >= 0, f"`damping` must be >= 0 N·s/m, got {self.damping}."),
-            (
-                self.stiffness >= 0,
-                f"`stiffness` must be >= 0 N/m, got {self.stiffness}.",
-            ),
+            Check(self.mass > 0, "`mass` must be > 0 kg", self.mass),
+            Check(self.damping >= 0, "`damping` must be >= 0 N·s/m", self.damping),
+            Check(self.stiffness >= 0, "`stiffness` must be >= 0 N/m", self.stiffness),
         ]
 
     def damper_motion(self, q, t, excitation):

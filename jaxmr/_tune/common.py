@@ -33,9 +33,9 @@ def check_inputs(system, controller, roads, samples) -> int:
         if not isinstance(samples, AbstractSystem):
             raise TypeError(
                 "`samples` must be a batch of systems (one leading axis), e.g. from "
-                f"`jaxmr.sample_systems`, got {type(samples).__name__}."
+                f"a fit's `FitResult.sample` placed in the system, got {type(samples).__name__}."
             )
-        runs *= batch_size(samples, "samples", "`jaxmr.sample_systems(...)`")
+        runs *= batch_size(samples, "samples", "`FitResult.sample(...)` (in a system)")
     return runs
 
 
@@ -87,16 +87,17 @@ def check_worst_share(worst_share, samples, who: str) -> float:
     if share < 1 and samples is None:
         raise ValueError(
             f"{who}: `worst_share` < 1 weighs the worst damper samples, so it needs "
-            "`samples=` (a batch of systems, e.g. from `jaxmr.sample_systems`)."
+            "`samples=` (a batch of systems, e.g. `FitResult.sample` placed in the system)."
         )
     return share
 
 
 def set_temperature(controller, temperature):
-    if temperature is None or not hasattr(controller, "temperature"):
+    """The controller with every law's relaxation at `temperature` (None: as it is),
+    wrapped laws included (`with_temperature`)."""
+    if temperature is None:
         return controller
-    value = jnp.asarray(temperature, dtype=jnp.result_type(controller.temperature))
-    return eqx.tree_at(lambda c: c.temperature, controller, value)
+    return with_temperature(controller, float(temperature))
 
 
 def held_out_loss(u, pair, samples, validation, setup: Setup) -> float | None:

@@ -9,6 +9,7 @@ import numpy as np
 
 from .._closed_loop import Sampling, SystemSolution, loop_settings
 from .._control.base import AbstractController
+from .._control.smooth import temperatures
 from .._distribute import to_host
 from .._integrate import FixedStep
 from .._systems.base import AbstractSystem
@@ -32,14 +33,17 @@ def _geometric(value, steps: int, name: str) -> np.ndarray:
 
 def _schedule(temperature, controller, steps: int) -> np.ndarray | None:
     """The relaxation temperature at each step, or None for the hard law only."""
-    if not hasattr(controller, "temperature"):
+    # Every law with a relaxation, wrapped ones (ObserverBasedController.law)
+    # included: what `with_temperature` sets.
+    own = temperatures(controller)
+    if not own:
         if temperature not in (None, 0, 0.0):
             raise ValueError(
                 f"tune: {type(controller).__name__} has no `temperature` to relax."
             )
         return None
     if temperature is None:
-        temperature = float(np.max(np.asarray(controller.temperature)))
+        temperature = max(float(np.max(np.asarray(t))) for t in own)
     if isinstance(temperature, (tuple, list)):
         return _geometric(temperature, steps, "temperature")
     temperature = float(temperature)
@@ -110,7 +114,7 @@ def tune(
     - `validation`: held-out roads; the returned pair's mean objective on them is
       `TuneResult.held_out_loss`.
     - `samples`: a batch of systems (one leading axis: damper parameters drawn from a
-      fit's covariance, `jaxmr.sample_systems`) to tune over instead of `system`
+      fit's covariance, `FitResult.sample`) to tune over instead of `system`
       alone: the loss is the mean over every sample and road (robust tuning). The
       tuned parameters are set in every sample.
     - `worst_share`: with `samples`, the loss is the mean over the worst

@@ -2,9 +2,10 @@
 
 `parameters(pair)` selects leaves of `(system, controller)` (the `eqx.tree_at`
 convention). The optimisers work on unbounded variables u, one array per leaf: the
-values themselves (`space` False), their logarithms (True: positive parameters,
-relative steps), or, with bounds, value = exp(log lo + (log hi - log lo) sigmoid(u)),
-inside the bounds whatever u.
+values themselves (space False), their logarithms (True: positive parameters,
+relative steps), or, with bounds (lo, hi), value = exp(log lo + (log hi - log lo)
+sigmoid(u)), inside the bounds whatever u. A space is one of these for every leaf, or
+a tuple of one per leaf (signed weights tuned with positive filter corners).
 """
 
 import functools
@@ -14,56 +15,105 @@ import jax.numpy as jnp
 import numpy as np
 
 
+def per_leaf(space, count: int) -> tuple:
+    """The space of each of `count` leaves: False, True or (lo, hi)."""
+    return space if isinstance(space, tuple) else (space,) * count
+
+
 def to_values(us, space) -> tuple:
-    if space is False:
-        return tuple(us)
-    if space is True:
-        return tuple(jnp.exp(u) for u in us)
     return tuple(
-        jnp.exp(np.log(lo) + (np.log(hi) - np.log(lo)) * jax.nn.sigmoid(u))
-        for u, (lo, hi) in zip(us, space, strict=True)
+        _to_value(u, entry) for u, entry in zip(us, per_leaf(space, len(us)), strict=True)
     )
 
 
+def _to_value(u, entry):
+    if entry is False:
+        return u
+    if entry is True:
+        return jnp.exp(u)
+    lo, hi = entry
+    return jnp.exp(np.log(lo) + (np.log(hi) - np.log(lo)) * jax.nn.sigmoid(u))
+
+
 def from_values(values, space, who: str) -> tuple:
-    if space is False:
-        return tuple(values)
-    if space is True:
-        return tuple(jnp.log(v) for v in values)
-    out = []
-    for v, (lo, hi) in zip(values, space, strict=True):
-        p = (jnp.log(v) - np.log(lo)) / (np.log(hi) - np.log(lo))
-        if not np.all((np.asarray(p) > 0) & (np.asarray(p) < 1)):
-            raise ValueError(
-                f"{who}: a starting value {v} lies outside its bounds ({lo}, {hi})."
+    return tuple(
+        _from_value(v, entry, who)
+        for v, entry in zip(values, per_leaf(space, len(values)), strict=True)
+    )
+
+
+def _from_value(v, entry, who: str):
+    if entry is False:
+        return v
+    if entry is True:
+        return jnp.log(v)
+    lo, hi = entry
+    p = (jnp.log(v) - np.log(lo)) / (np.log(hi) - np.log(lo))
+    if not np.all((np.asarray(p) > 0) & (np.asarray(p) < 1)):
+        raise ValueError(
+            f"{who}: a starting value {v} lies outside its bounds ({lo}, {hi})."
+        )
+    return jnp.log(p / (1 - p))
+
+
+def as_space(log_space, bounds, who: str):
+    """`False` or `True` for every leaf, or a tuple of False, True or (low, high) per
+    leaf: `log_space` a bool or one per parameter, `bounds` None or a (low, high) per
+    parameter (None for an unbounded one)."""
+    if isinstance(log_space, (list, tuple)):
+        logs = tuple(log_space)
+        if not logs or not all(isinstance(x, (bool, np.bool_)) for x in logs):
+            raise TypeError(
+                f"{who}: `log_space` must be a bool or one bool per parameter, got "
+                f"{log_space!r}."
             )
-        out.append(jnp.log(p / (1 - p)))
-    return tuple(out)
-
-
-def as_space(log_space: bool, bounds, who: str):
-    """`False`, `True` or a tuple of (low, high) per parameter."""
+        logs = tuple(bool(x) for x in logs)
+    elif isinstance(log_space, (bool, np.bool_)):
+        logs = bool(log_space)
+    else:
+        raise TypeError(
+            f"{who}: `log_space` must be a bool or one bool per parameter, got "
+            f"{log_space!r}."
+        )
     if bounds is None:
-        return bool(log_space)
-    if not log_space:
-        raise ValueError(f"{who}: `bounds` need `log_space=True`.")
-    space = tuple((float(lo), float(hi)) for lo, hi in bounds)
-    if any(not 0 < lo < hi for lo, hi in space):
-        raise ValueError(f"{who}: `bounds` must be 0 < low < high, got {bounds}.")
-    return space
+        return logs
+    bounds = tuple(bounds)
+    if isinstance(logs, tuple) and len(logs) != len(bounds):
+        raise ValueError(
+            f"{who}: `log_space` and `bounds` must have one entry per parameter, got "
+            f"{len(logs)} and {len(bounds)}."
+        )
+    logs = per_leaf(logs, len(bounds))
+    space = []
+    for log, bound in zip(logs, bounds, strict=True):
+        if bound is None:
+            space.append(log)
+            continue
+        if not log:
+            raise ValueError(f"{who}: `bounds` need `log_space=True` (for that parameter).")
+        lo, hi = (float(b) for b in bound)
+        if not 0 < lo < hi:
+            raise ValueError(f"{who}: `bounds` must be 0 < low < high, got {bounds}.")
+        space.append((lo, hi))
+    return tuple(space)
 
 
-def initial_values(pair, where, log_space: bool, who: str) -> tuple:
+def initial_values(pair, where, space, who: str) -> tuple:
     values = tuple(jnp.asarray(v) for v in where(pair))
     if not values:
         raise ValueError(f"{who}: `parameters` selected no leaves.")
-    for v in values:
+    if isinstance(space, tuple) and len(space) != len(values):
+        raise ValueError(
+            f"{who}: `log_space` or `bounds` give {len(space)} entries, but "
+            f"`parameters` selected {len(values)} arrays: give one per array."
+        )
+    for v, entry in zip(values, per_leaf(space, len(values)), strict=True):
         if not jnp.issubdtype(v.dtype, jnp.inexact):
             raise TypeError(
                 f"{who}: every tuned parameter must be a floating-point array, got "
                 f"dtype {v.dtype}."
             )
-        if log_space and not np.all(np.asarray(v) > 0):
+        if entry is not False and not np.all(np.asarray(v) > 0):
             raise ValueError(
                 f"{who}: every tuned parameter must be positive (they are optimised "
                 "in log space, as gains and damping coefficients are), got "

@@ -1,0 +1,185 @@
+r"""A law run as a real controller runs it: on sensor readings, with the velocities no
+sensor gives estimated and the damper's hidden state observed."""
+
+from typing import Any
+
+import equinox as eqx
+import jax.numpy as jnp
+
+from .._custom_types import PyTree, Scalar
+from .base import AbstractController, DamperPlant
+from .estimator import EstimatorState, VelocityEstimator
+from .observer import DamperObserver, ObserverState
+from .sampling import Sampling
+from .sensors import readings
+from .smooth import clip_command
+
+
+class ControllerState(eqx.Module):
+    """An `ObserverBasedController`'s state: `estimator` (an `EstimatorState`, or
+    `()`), `observer` (an `ObserverState`, or `()`) and `law`, the law's own."""
+
+    estimator: EstimatorState | tuple
+    observer: ObserverState | tuple
+    law: PyTree
+
+
+class _NoPlant(DamperPlant):
+    """The damper a controller gets when it may not read the device: every use says
+    so (`simulate_system` with `sensors`, or an `ObserverBasedController` with neither
+    an observer nor the oracle). A `DamperPlant`, so that the laws' type checks pass
+    it on to the use that raises with `why`."""
+
+    damper: Any = None
+    state: Any = None
+    x: Any = None
+    v: Any = None
+    why: str = eqx.field(static=True, default="")
+
+    def _refuse(self, *args, **kwargs):
+        raise TypeError(self.why)
+
+    force_at = band = yield_force = with_model = current_for_force = _refuse
+
+
+class ObserverBasedController(AbstractController):
+    r"""A law on what a controller can know: sensor readings, estimated velocities,
+    and its own nominal damper's observed state for the inverse model.
+
+    At every sample (`sampling.dt`): the `estimator` turns the readings into the
+    velocities no sensor gives (its estimates replace readings of the same name);
+    the `observer` brings its nominal damper's state up to this sample and corrects it
+    with the measured force (`damper_force`) where one is read; the law then decides
+    the command from the readings and estimates, inverting the observer's damper
+    (`DamperObserver.plant`) instead of the simulated device; the observer notes the
+    command (it acts `sampling.delay` samples later). Where no sensor reads the
+    damper's force, the law reads the observer's model force as `damper_force`
+    (with perfect information, `sensors="oracle"`, the true force is read, and
+    corrects the observer as a perfect load cell would).
+
+    The whole state is a fixed-size pytree (`ControllerState`) stepped by this pure
+    function at a fixed sample time: what runs on a real-time target.
+
+    `oracle=True` hands the law the simulated device itself, at its true state (the
+    perfect information of a bare law in `simulate_system`), for research
+    comparisons; it excludes an observer. With neither, the law may not invert a
+    damper (laws such as `OnOffSkyhook` need none).
+
+    **Arguments:**
+
+    - `law`: any jaxmr controller (its `i_max` is this controller's).
+    - `estimator`: a `VelocityEstimator`, or `None` (default): the law reads the
+      readings as they are (sensors that give velocities, or perfect information).
+    - `observer`: a `DamperObserver` with the nominal damper model, or `None`
+      (default).
+    - `sampling`: the controller's `Sampling(dt, delay)` [s, samples], at which the
+      filters and the observer step; `simulate_system` takes it from here when given
+      no `sampling` and refuses a different one. Default `Sampling()`.
+    - `oracle`: static, default False; see above.
+    """
+
+    law: AbstractController
+    estimator: VelocityEstimator | None = None
+    observer: DamperObserver | None = None
+    sampling: Sampling = Sampling()
+    oracle: bool = eqx.field(static=True, default=False)
+
+    def __check_init__(self):
+        if not isinstance(self.law, AbstractController):
+            raise TypeError(
+                "ObserverBasedController: `law` must be a jaxmr controller, got "
+                f"{type(self.law).__name__}."
+            )
+        if self.estimator is not None and not isinstance(
+            self.estimator, VelocityEstimator
+        ):
+            raise TypeError(
+                "ObserverBasedController: `estimator` must be a VelocityEstimator or "
+                f"None, got {type(self.estimator).__name__}."
+            )
+        if self.observer is not None and not isinstance(self.observer, DamperObserver):
+            raise TypeError(
+                "ObserverBasedController: `observer` must be a DamperObserver or None, "
+                f"got {type(self.observer).__name__}."
+            )
+        if not isinstance(self.sampling, Sampling):
+            raise TypeError(
+                "ObserverBasedController: `sampling` must be a jaxmr.Sampling(dt, "
+                f"delay), got {type(self.sampling).__name__}."
+            )
+        if self.oracle and self.observer is not None:
+            raise ValueError(
+                "ObserverBasedController: `oracle=True` hands the law the device's true "
+                "state; give it without an `observer`."
+            )
+
+    @property
+    def i_max(self):
+        return self.law.i_max
+
+    def _estimated(self, measurement, state):
+        if self.estimator is None:
+            return readings(measurement), ()
+        estimates, state = self.estimator.step(state, measurement, self.sampling.dt)
+        return readings({**measurement, **estimates}), state
+
+    def _observed(self, observer: DamperObserver, measurement, state: ObserverState):
+        """The observer brought to this sample, the damper the law inverts, and the
+        readings with the model force where no force is measured."""
+        force = measurement.get("damper_force")
+        state = observer.update(
+            state,
+            measurement["damper_displacement"],
+            measurement["damper_velocity"],
+            force,
+            self.sampling.dt,
+        )
+        if force is None:
+            measurement = readings(
+                {**measurement, "damper_force": observer.force(state)}
+            )
+        return state, observer.plant(state), measurement
+
+    def init(self, measurement) -> ControllerState:
+        """The state before the first sample. The observer's commands before the first
+        are the law's first decision at the first readings, the damper at zero
+        current, as `simulate_system` starts the device."""
+        estimator = () if self.estimator is None else self.estimator.init(measurement)
+        # The estimates at the first sample, for the law's own `init`.
+        merged, _ = self._estimated(measurement, estimator)
+        law = self.law.init(merged)
+        if self.observer is None:
+            return ControllerState(estimator, (), law)
+        x, v = merged["damper_displacement"], merged["damper_velocity"]
+        zero = jnp.zeros_like(jnp.asarray(x))
+        delay = self.sampling.delay
+        probe = self.observer.init(x, v, zero, delay)
+        probe, plant, merged = self._observed(self.observer, merged, probe)
+        first, _ = self.law(merged, law, plant)
+        first = clip_command(first, self.law.i_max)
+        return ControllerState(estimator, self.observer.init(x, v, first, delay), law)
+
+    def __call__(
+        self, measurement, state: ControllerState, plant: DamperPlant
+    ) -> tuple[Scalar, ControllerState]:
+        merged, estimator = self._estimated(measurement, state.estimator)
+        if self.observer is None:
+            own = plant if self.oracle else _NoPlant(why=_NO_PLANT)
+            command, law = self.law(merged, state.law, own)
+            command = clip_command(command, self.law.i_max)
+            return command, ControllerState(estimator, (), law)
+        observer = state.observer
+        assert isinstance(observer, ObserverState)  # given an observer, its state
+        observer, own, merged = self._observed(self.observer, merged, observer)
+        command, law = self.law(merged, state.law, own)
+        command = clip_command(command, self.law.i_max)
+        observer = self.observer.commanded(observer, command)
+        return command, ControllerState(estimator, observer, law)
+
+
+_NO_PLANT = (
+    "This law inverts the damper, but the controller has no damper to invert: give "
+    "the ObserverBasedController an `observer=jaxmr.DamperObserver(nominal_damper)` "
+    "(or `oracle=True` to read the simulated device's true state, for research "
+    "comparisons only)."
+)

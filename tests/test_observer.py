@@ -1,0 +1,270 @@
+"""The controller's estimates: velocities from accelerometers and a deflection sensor
+(`VelocityEstimator`), the damper's hidden state from its own nominal model
+(`DamperObserver`), and the two with a law on realistic sensors in the closed loop
+(`ObserverBasedController`), differentiable."""
+
+import math
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import jaxmr
+import jaxmr.metrics
+
+DT = 1e-3
+T = 0.5  # [s] of road for the closed-loop runs
+DAMPER = jaxmr.passenger_car_mr_damper()
+Z0 = 1e-3  # [m] its Bouc–Wen state's bound A/(beta + gamma)
+# Relaxed: a continuous law, whose command moves as little as its inputs do (the
+# hard law jumps by the whole current range where the damper's band closes, so a
+# change of 1e-9 there changes the run).
+SKYHOOK = jaxmr.Skyhook(2000.0, 1.0, temperature=0.1)
+
+
+# -- the velocity estimator, offline on synthetic readings ----------------------------
+
+
+@eqx.filter_jit
+def _estimate(estimator, readings):
+    def one(state, reading):
+        estimates, state = estimator.step(state, reading, DT)
+        return state, estimates
+
+    first = jax.tree.map(lambda r: r[0], readings)
+    return jax.lax.scan(one, estimator.init(first), readings)[1]
+
+
+def test_the_estimator_integrates_above_its_corner_and_ignores_a_bias():
+    f, fh, bias = 1.1, 0.1, 0.3  # [Hz], [Hz], [m/s²]
+    w, wh = 2 * math.pi * f, 2 * math.pi * fh
+    t = np.arange(40_000) * DT
+    # Body and wheel velocities sin(wt) and 0.5 cos(3wt) [m/s]; the deflection
+    # their difference's integral.
+    readings = {
+        "body_acceleration": jnp.asarray(w * np.cos(w * t) + bias),
+        "wheel_acceleration": jnp.asarray(-1.5 * w * np.sin(3 * w * t) - bias),
+        "damper_displacement": jnp.asarray(
+            (1 - np.cos(w * t)) / w - 0.5 * np.sin(3 * w * t) / (3 * w)
+        ),
+    }
+    out = _estimate(jaxmr.VelocityEstimator(high_pass=fh), readings)
+    late = t > 30.0  # the double pole at f_h has decayed: exp(-w_h 30) 30 w_h = 6e-7
+    # The body velocity is the true one through s/(s + w_h)²: the gain and phase of
+    # that filter at f, to 0.2 % and 0.2° (the sampling's own error is 1e-5).
+    h = 1j * w / (1j * w + wh) ** 2 * (1j * w)  # times s: from velocity to estimate
+    basis = np.stack([np.sin(w * t), np.cos(w * t)], axis=1)
+    (s, c), *_ = np.linalg.lstsq(basis[late], np.asarray(out["body_velocity"])[late])
+    assert math.hypot(s, c) == pytest.approx(abs(h), rel=2e-3)
+    assert math.atan2(c, s) == pytest.approx(np.angle(h), abs=math.radians(0.2))
+    # The deflection rate from consistent readings is the true one, biases and all:
+    # the tracker's only error is its prediction's, the accelerations taken linear
+    # between samples (measured: 1e-5 of the 1.5 m/s amplitude).
+    true = np.sin(w * t) - 0.5 * np.cos(3 * w * t)
+    error = np.asarray(out["damper_velocity"]) - true
+    assert np.max(np.abs(error[late])) < 1e-4
+
+
+def _error_matrix(estimator):
+    """The tracker's error dynamics over one sample, (deflection, rate, bias)."""
+    alpha, beta, gamma = (float(g) for g in estimator.gains(DT))
+    predict = np.array([[1, DT, -(DT**2) / 2], [0, 1, -DT], [0, 0, 1]])
+    correct = np.array([[1 - alpha, 0, 0], [-beta / DT, 1, 0], [-gamma / DT**2, 0, 1]])
+    return correct @ predict
+
+
+def test_the_estimator_gains_place_the_poles():
+    wdt = 2 * math.pi * 5.0 * DT
+    poles = np.linalg.eigvals(_error_matrix(jaxmr.VelocityEstimator(5.0, 0.7)))
+    pair = np.exp((-0.7 + 1j * math.sqrt(1 - 0.7**2)) * wdt)
+    expected = [np.exp(-wdt), pair, pair.conjugate()]
+    # Eigenvalues near a triple-ish cluster: to 1e-9, far above float64's roundoff.
+    np.testing.assert_allclose(
+        np.sort_complex(poles), np.sort_complex(expected), rtol=0, atol=1e-9
+    )
+    # Overdamped: real poles, the same formulas through cosh.
+    poles = np.linalg.eigvals(_error_matrix(jaxmr.VelocityEstimator(5.0, 2.0)))
+    root = math.sqrt(2.0**2 - 1)
+    expected = np.exp(np.array([-1.0, -2 - root, -2 + root]) * wdt)
+    np.testing.assert_allclose(
+        np.sort(poles.real), np.sort(expected), rtol=0, atol=1e-9
+    )
+    assert np.max(np.abs(poles.imag)) < 1e-9
+
+
+# -- the damper observer, offline on a perfect-information run ------------------------
+
+
+@pytest.fixture(scope="module")
+def car():
+    return jaxmr.passenger_car(DAMPER)
+
+
+@pytest.fixture(scope="module")
+def road():
+    return jaxmr.iso8608_road("C", 20.0, T, jax.random.key(0))
+
+
+@pytest.fixture(scope="module")
+def oracle(car, road):
+    """Skyhook with perfect information: a motion and a command that both vary."""
+    return jaxmr.simulate_system(car, road, SKYHOOK, T)
+
+
+@eqx.filter_jit
+def _observe(observer, solution, z_start):
+    """The observer stepped over the run's true deflection, rate, force and
+    commands (delay 1, as the run), from the hysteretic state `z_start` [m]."""
+    x, v = solution["damper_displacement"], solution["damper_velocity"]
+    state = observer.init(x[0], v[0], solution.command[0], 1)
+    state = eqx.tree_at(lambda s: s.damper, state, state.damper.at[0].set(z_start))
+
+    def one(state, sample):
+        x, v, force, command = sample
+        state = observer.update(state, x, v, force, DT)
+        out = (state.damper[0], observer.force(state))
+        return observer.commanded(state, command), out
+
+    samples = (x, v, solution["damper_force"], solution.command)
+    return jax.lax.scan(one, state, samples)[1]
+
+
+def _windows(error, width):
+    return np.max(np.abs(np.asarray(error)).reshape(-1, width), axis=1)
+
+
+def test_the_observer_tracks_the_device_from_a_wrong_state(oracle):
+    z_true = np.asarray(oracle.states[:, 4])  # the device's Bouc–Wen state [m]
+    for gain in (0.0, 0.5):  # no correction (no load cell), then a load cell's
+        observer = jaxmr.DamperObserver(DAMPER, gain=gain)
+        right, _ = _observe(observer, oracle, 0.0)
+        wrong, _ = _observe(observer, oracle, Z0)
+        # From the true start the same model on the same motion is the device, but
+        # for the motion taken linear between samples: 1 % of z0.
+        assert np.max(np.abs(np.asarray(right) - z_true)) < 1e-2 * Z0
+        # From the wrong start (z0 off) the error falls, window after window of 10
+        # ms, to that same 1 % once the motion has swept the state (a few mm: 40
+        # ms open loop, 10 ms with the load cell) and stays there.
+        error = _windows(np.asarray(wrong) - z_true, 10)
+        # (the first sample's state already corrected by the load cell's share)
+        assert error[0] == pytest.approx((1 - gain) * Z0, rel=1e-6)
+        settled = int(np.argmax(error < 1e-2 * Z0))
+        assert 0 < settled <= 10, error
+        assert np.all(np.diff(error[: settled + 1]) < 0), error
+        assert np.max(error[settled:]) < 1e-2 * Z0, error
+    # The load cell's correction removes half the force error at every sample: the
+    # state is within 1 % of z0 after 10 samples, where the open-loop one is not.
+    corrected, _ = _observe(jaxmr.DamperObserver(DAMPER, gain=0.5), oracle, Z0)
+    open_loop, _ = _observe(jaxmr.DamperObserver(DAMPER, gain=0.0), oracle, Z0)
+    assert abs(float(corrected[10]) - z_true[10]) < 1e-2 * Z0
+    assert abs(float(open_loop[10]) - z_true[10]) > 0.1 * Z0
+
+
+def test_a_mismatched_observer_stays_bounded_and_the_load_cell_helps(oracle):
+    # The nominal model a third stiffer, its viscous part a fifth softer, its state
+    # saturating at 1.5 mm and its coil 20 % slower than the device's.
+    nominal = jaxmr.Damper(
+        jaxmr.BoucWen(
+            alpha=jaxmr.LinearLaw(3e4 * 1.3, 9.7e5 * 1.3),
+            c0=jaxmr.LinearLaw(200.0 * 0.8, 1800.0 * 0.8),
+            A=1.5,
+            beta=500.0,
+            gamma=500.0,
+            n=1.0,
+        ),
+        jaxmr.FirstOrderLag(100.0),
+    )
+    force = np.asarray(oracle["damper_force"])
+    errors = {}
+    for gain in (0.0, 0.5):
+        z, predicted = _observe(jaxmr.DamperObserver(nominal, gain=gain), oracle, 0.0)
+        assert np.all(np.isfinite(z)) and np.max(np.abs(z)) <= 1.5e-3 * (1 + 1e-9)
+        errors[gain] = float(np.sqrt(np.mean((np.asarray(predicted) - force) ** 2)))
+    rms = float(np.sqrt(np.mean(force**2)))
+    # Open loop the model's own error (measured: 30 % of the force's RMS); with
+    # the load cell the observed state absorbs most of it (measured: 8 %).
+    assert errors[0.0] < 0.5 * rms
+    assert errors[0.5] < 0.5 * errors[0.0]
+
+
+# -- in the closed loop ---------------------------------------------------------------
+
+
+def test_ideal_sensors_reproduce_the_perfect_information_run(car, road, oracle):
+    read = ("body_velocity", "damper_displacement", "damper_velocity")
+    ideal = jaxmr.Sensors({name: jaxmr.Sensor() for name in read})
+    controller = jaxmr.ObserverBasedController(SKYHOOK, oracle=True)
+    sensed = jaxmr.simulate_system(
+        car, road, controller, T, sensors=ideal, key=jax.random.key(1)
+    )
+    # The same arithmetic on the same values: equal to the last bit but for XLA
+    # fusing the two programs differently (1e-12 of an ampere, of a m/s²).
+    np.testing.assert_allclose(sensed.command, oracle.command, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(
+        sensed["body_acceleration"], oracle["body_acceleration"], rtol=0, atol=1e-12
+    )
+    for name in read:
+        np.testing.assert_array_equal(sensed.measured[name], sensed[name])
+    assert oracle.measured is None
+
+
+def test_an_ideal_observer_based_law_runs_as_with_perfect_information(
+    car, road, oracle
+):
+    # Ideal velocity and deflection sensors, the nominal model the device: only the
+    # observer differs from the oracle's perfect information.
+    ideal = jaxmr.Sensors(
+        {n: jaxmr.Sensor() for n in ("body_velocity", "damper_displacement")}
+        | {"damper_velocity": jaxmr.Sensor()}
+    )
+    controller = jaxmr.ObserverBasedController(
+        SKYHOOK, observer=jaxmr.DamperObserver(DAMPER)
+    )
+    sol = jaxmr.simulate_system(
+        car, road, controller, T, sensors=ideal, key=jax.random.key(0)
+    )
+    observed = np.asarray(sol.controller_states.observer.damper[:, 0])
+    assert np.max(np.abs(observed - np.asarray(sol.states[:, 4]))) < 1e-2 * Z0
+    # The observed state's 1 % error moves the command by at most 0.01 A (measured:
+    # 1.4e-3 A) and the comfort by 1e-4 of itself (measured: 4e-6).
+    np.testing.assert_allclose(sol.command, oracle.command, rtol=0, atol=1e-2)
+    assert float(jaxmr.metrics.comfort(sol)) == pytest.approx(
+        float(jaxmr.metrics.comfort(oracle)), rel=1e-4
+    )
+
+
+def test_the_realistic_loop_is_differentiable_and_reads_as_its_sensors(car, road):
+    sensors = jaxmr.realistic_sensors(car, load_cell=True)
+    controller = jaxmr.ObserverBasedController(
+        SKYHOOK,
+        estimator=jaxmr.VelocityEstimator(),
+        observer=jaxmr.DamperObserver(DAMPER),
+    )
+
+    @eqx.filter_jit
+    @eqx.filter_value_and_grad(has_aux=True)
+    def loss(controller, key):
+        sol = jaxmr.simulate_system(car, road, controller, T, sensors=sensors, key=key)
+        return jaxmr.metrics.comfort(sol), sol
+
+    (value, sol), grads = loss(controller, jax.random.key(5))
+    assert np.isfinite(float(value)) and sol.result == jaxmr.RESULTS.successful
+    # The law's gain and the estimator's and the observer's parameters, which a
+    # joint tuning would move: finite, and the law's gain felt.
+    for g in (
+        grads.law.c_sky,
+        grads.estimator.crossover,
+        grads.estimator.high_pass,
+        grads.observer.gain,
+    ):
+        assert np.isfinite(float(g))
+    assert float(grads.law.c_sky) != 0.0
+    # What the controller read is what `Sensors.read` makes of the true outputs
+    # with the same key; another key draws other noise.
+    offline = sensors.read(sol.outputs, jax.random.key(5), DT)
+    (_, other), _ = loss(controller, jax.random.key(6))
+    for name in sensors.names:
+        np.testing.assert_array_equal(sol.measured[name], offline[name])
+        assert not np.array_equal(sol.measured[name], other.measured[name])
