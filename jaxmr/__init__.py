@@ -63,6 +63,10 @@ if TYPE_CHECKING:
         TableLaw as TableLaw,
     )
     from ._damper import Damper as Damper
+    from ._export import (
+        export_c as export_c,
+        export_stablehlo as export_stablehlo,
+    )
     from ._fitted_range import (
         FittedRange as FittedRange,
         OutsideFittedRange as OutsideFittedRange,

@@ -207,7 +207,13 @@ class FixedStep(AbstractIntegrator):
             def step(k, y):
                 return rk4_step(vector_field, t0 + k * h, y, h, args)
 
-            y = jax.lax.fori_loop(0, self.substeps, step, y)
+            # Unrolled (up to 8 steps): a loop inside the scan's loop costs more per
+            # iteration than a step of a small model (the brake sweep's 64 motions
+            # ran ~25 % faster with substeps=3 unrolled; unrolling the outer scan
+            # as well was slower and compiled 2-4x longer).
+            y = jax.lax.fori_loop(
+                0, self.substeps, step, y, unroll=min(self.substeps, 8)
+            )
             return y, y
 
         _, ys = jax.lax.scan(interval, y0, (ts[:-1], ts[1:]))

@@ -1,5 +1,5 @@
-"""The `jaxmr` command line: `jaxmr demo`, `fit`, `predict`, `report`, `convert` and
-`design`.
+"""The `jaxmr` command line: `jaxmr demo`, `fit`, `predict`, `report`, `convert`,
+`design` and `export`.
 
 A module per command (`demo.py`, `fit.py`, ...), each with `add_parser(subparsers)`,
 which registers its arguments, and `run(args) -> int`, which runs it; `files.py` reads
@@ -29,13 +29,13 @@ from collections.abc import Sequence
 # `jaxmr.data`, which builds on them) are imported by the commands that use them.
 import jaxmr
 
-from . import cache, convert, demo, design, fit, predict, report
+from . import cache, convert, demo, design, export, fit, predict, report
 from .errors import INTERRUPTED, CLIError
 
 __all__ = ["CLIError", "main"]
 
 # The commands, in the order of `jaxmr --help`.
-COMMANDS = (demo, fit, predict, report, convert, design)
+COMMANDS = (demo, fit, predict, report, convert, design, export)
 
 
 def main(argv: Sequence[str | os.PathLike] | None = None) -> int:

@@ -1,6 +1,8 @@
 r"""A law run as a real controller runs it: on sensor readings, with the velocities no
 sensor gives estimated and the damper's hidden state observed."""
 
+import functools
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import equinox as eqx
@@ -117,6 +119,69 @@ class ObserverBasedController(AbstractController):
     def i_max(self):
         return self.law.i_max
 
+    def tunable(
+        self,
+        law: Callable | None = None,
+        *,
+        law_log_space: bool = True,
+        estimator: Sequence[str] = ("crossover", "damping", "high_pass"),
+        observer: Sequence[str] = (),
+    ) -> dict:
+        """The keywords `parameters`, `log_space` and `bounds` of `jaxmr.tune` (and
+        `cma_es`, `random_search`) that tune the law and this controller's filters
+        together, e.g. `jaxmr.tune(car, controller, roads, T, sensors=...,
+        sensor_key=..., **controller.tunable(jaxmr.ForceFeedback.weights,
+        law_log_space=False))`.
+
+        The selected arrays are the law's (first, in `law`'s order), then the
+        estimator's, then the observer's. The estimator's corners [Hz] and damping
+        [1] are tuned in log space (positive, relative steps), the observer's `gain`
+        [1] in log space within (1e-4, 1).
+
+        **Arguments:**
+
+        - `law`: a selector of the law's arrays on a `(system, law)` pair, as for
+          the bare law (`jaxmr.ForceFeedback.weights`, `lambda pair:
+          pair[1].c_sky`); it must read the law only (`pair[1]`). `None`: none.
+        - `law_log_space`: whether the law's arrays are tuned in log space (True,
+          positive gains) or in values (False: signed weights).
+        - `estimator`: the `VelocityEstimator` fields to tune (default all three);
+          `()` for none. Needs an estimator when not empty.
+        - `observer`: the `DamperObserver` fields to tune: `("gain",)` (useful with
+          a load cell, which the gain weighs) or `()` (default).
+
+        **Returns:** `{"parameters": ..., "log_space": ..., "bounds": ...}`.
+        """
+        estimator, observer = tuple(estimator), tuple(observer)
+        for fields, part, known in (
+            (estimator, self.estimator, _ESTIMATOR_FIELDS),
+            (observer, self.observer, _OBSERVER_FIELDS),
+        ):
+            unknown = sorted(set(fields) - set(known))
+            if unknown:
+                raise ValueError(
+                    f"ObserverBasedController.tunable: no tunable field {unknown[0]!r}; "
+                    f"the choices are {known}."
+                )
+            if fields and part is None:
+                raise ValueError(
+                    f"ObserverBasedController.tunable: {fields} selects fields of a "
+                    "part this controller does not have (its estimator or observer "
+                    "is None); give `()`."
+                )
+        count = 0 if law is None else len(_as_list(law((None, self.law))))
+        if count + len(estimator) + len(observer) == 0:
+            raise ValueError("ObserverBasedController.tunable: nothing selected.")
+        log_space = (bool(law_log_space),) * count + (True,) * (
+            len(estimator) + len(observer)
+        )
+        bounds = (None,) * (count + len(estimator)) + (_GAIN_BOUNDS,) * len(observer)
+        return {
+            "parameters": _selector(law, estimator, observer),
+            "log_space": log_space,
+            "bounds": bounds if observer else None,
+        }
+
     def _estimated(self, measurement, state):
         if self.estimator is None:
             return readings(measurement), ()
@@ -175,6 +240,30 @@ class ObserverBasedController(AbstractController):
         command = clip_command(command, self.law.i_max)
         observer = self.observer.commanded(observer, command)
         return command, ControllerState(estimator, observer, law)
+
+
+_ESTIMATOR_FIELDS = ("crossover", "damping", "high_pass")
+_OBSERVER_FIELDS = ("gain",)
+# The observer's gain is a share of the force error removed per sample: within (0, 1].
+_GAIN_BOUNDS = (1e-4, 1.0)
+
+
+def _as_list(leaves) -> list:
+    return list(leaves) if isinstance(leaves, (list, tuple)) else [leaves]
+
+
+@functools.lru_cache(maxsize=64)
+def _selector(law, estimator: tuple, observer: tuple) -> Callable:
+    # One function per choice, so that tuning twice with the same choice reuses the
+    # compiled loss (the tuners' static argument).
+    def parameters(pair):
+        controller = pair[1]
+        out = [] if law is None else _as_list(law((pair[0], controller.law)))
+        out += [getattr(controller.estimator, name) for name in estimator]
+        out += [getattr(controller.observer, name) for name in observer]
+        return out
+
+    return parameters
 
 
 _NO_PLANT = (

@@ -22,11 +22,13 @@ def batch_size(tree, what: str, example: str) -> int:
 
 
 def road_batch(roads):
-    """`(roads, valid)`: the roads spread over every device of every process, padded
-    to a whole number per device with copies of the last (`valid` False), which the
-    losses' means leave out (`loss.mean_or_inf`)."""
+    """`((roads, index), valid)`: the roads, each with its index in the batch (which
+    picks its sensors' noise, `loss.sensing`), spread over every device of every
+    process, padded to a whole number per device with copies of the last (`valid`
+    False), which the losses' means leave out (`loss.mean_or_inf`)."""
     n = batch_size(roads, "roads", ROADS_EXAMPLE)
     mesh = batch_mesh()
     count = padded_size(n, mesh)
     valid = jnp.arange(count) < n
-    return spread((pad(roads, n, count), valid), mesh)
+    runs = (roads, jnp.arange(n))
+    return spread((pad(runs, n, count), valid), mesh)

@@ -1,13 +1,16 @@
 """Input checks and helpers shared by every tuner."""
 
 import time
+from collections.abc import Sequence
 
 import equinox as eqx
-import jax.numpy as jnp
+import jax
 import numpy as np
 
 from .._closed_loop import Sampling
 from .._control.base import AbstractController
+from .._control.observer_based import ObserverBasedController
+from .._control.sensors import Sensors
 from .._control.smooth import with_temperature
 from .._distribute import to_host
 from .._integrate import FixedStep
@@ -46,7 +49,7 @@ def prepare(
     roads,
     samples,
     parameters,
-    log_space: bool,
+    log_space: bool | Sequence[bool],
     bounds,
     objective,
     duration,
@@ -67,8 +70,45 @@ def prepare(
     # the controller was handed with: a relaxed law is a device for the gradient, not
     # what runs on the car.
     pair = (system, with_temperature(controller, 0.0))
-    u0 = from_values(initial_values(pair, where, log_space, who), space, who)
+    u0 = from_values(initial_values(pair, where, space, who), space, who)
     return runs, setup, pair, u0, road_batch(roads)
+
+
+def own_sampling(controller, sampling, deprecated: dict):
+    """`sampling`, or an `ObserverBasedController`'s own when none is given (its
+    filters step at it; `simulate_system` refuses another)."""
+    if (
+        sampling is None
+        and isinstance(controller, ObserverBasedController)
+        and not {"dt", "delay"} & set(deprecated)
+    ):
+        return controller.sampling
+    return sampling
+
+
+def sensor_noise(sensors, sensor_key, who: str):
+    """`(sensors, sensor_key)` for the losses (`loss.sensing`), or None for perfect
+    information (`sensors="oracle"`)."""
+    if isinstance(sensors, str) and sensors == "oracle":
+        if sensor_key is not None:
+            raise ValueError(
+                f"{who}: `sensor_key` draws the sensors' noise; give it with "
+                "`sensors=` (e.g. jaxmr.realistic_sensors(system)), not with the "
+                "oracle's perfect information."
+            )
+        return None
+    if not isinstance(sensors, Sensors):
+        raise TypeError(
+            f"{who}: `sensors` must be a jaxmr.Sensors set (e.g. "
+            'jaxmr.realistic_sensors(system)) or "oracle" (perfect information), got '
+            f"{sensors!r}."
+        )
+    if not isinstance(sensor_key, jax.Array):
+        raise TypeError(
+            f"{who}: `sensors` need `sensor_key=jax.random.key(...)` for their noise, "
+            f"got {type(sensor_key).__name__}."
+        )
+    return sensors, sensor_key
 
 
 def check_worst_share(worst_share, samples, who: str) -> float:
@@ -100,11 +140,13 @@ def set_temperature(controller, temperature):
     return with_temperature(controller, float(temperature))
 
 
-def held_out_loss(u, pair, samples, validation, setup: Setup) -> float | None:
-    """The hard pair's mean objective on the validation roads."""
+def held_out_loss(u, pair, samples, validation, setup: Setup, noise) -> float | None:
+    """The hard pair's mean objective on the validation roads (their noise drawn as
+    `evaluate` draws it)."""
     if validation is None:
         return None
-    return float(to_host(losses(u, pair, samples, road_batch(validation), setup)[1]))
+    batch = road_batch(validation)
+    return float(to_host(losses(u, pair, samples, batch, setup, noise)[1]))
 
 
 def printer(progress, who: str):
@@ -136,6 +178,7 @@ def tune_result(
     history,
     samples,
     validation,
+    noise=None,
     simulations: int,
     start: float,
     reason: str,
@@ -150,7 +193,7 @@ def tune_result(
         values=values,
         loss=float(loss),
         initial_loss=float(initial),
-        held_out_loss=held_out_loss(best_u, pair, samples, validation, setup),
+        held_out_loss=held_out_loss(best_u, pair, samples, validation, setup, noise),
         history=tuple(history),
         simulations=simulations,
         seconds=seconds,

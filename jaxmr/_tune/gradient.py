@@ -9,11 +9,19 @@ import numpy as np
 
 from .._closed_loop import Sampling, SystemSolution, loop_settings
 from .._control.base import AbstractController
+from .._control.sensors import Sensors
 from .._control.smooth import temperatures
 from .._distribute import to_host
 from .._integrate import FixedStep
 from .._systems.base import AbstractSystem
-from .common import prepare, printer, set_temperature, tune_result
+from .common import (
+    own_sampling,
+    prepare,
+    printer,
+    sensor_noise,
+    set_temperature,
+    tune_result,
+)
 from .loss import comfort, loss_and_grad, losses
 from .result import TuneResult
 
@@ -68,10 +76,12 @@ def tune(
     validation=None,
     samples: AbstractSystem | None = None,
     worst_share: float = 1.0,
+    sensors: Sensors | str = "oracle",
+    sensor_key: jax.Array | None = None,
     sampling: Sampling | None = None,
     integrator: FixedStep | None = None,
-    log_space: bool = True,
-    bounds: Sequence[tuple[float, float]] | None = None,
+    log_space: bool | Sequence[bool] = True,
+    bounds: Sequence[tuple[float, float] | None] | None = None,
     progress: bool | Callable = True,
     **deprecated,
 ) -> TuneResult:
@@ -122,18 +132,36 @@ def tune(
       conditional value at risk (CVaR) of the spread. 1 (default) is the mean over
       every sample; $1/S$ of $S$ samples the worst one alone; 0.3 the worst 30 %.
       Worst-case tuning: a law that must hold on every unit, not on the average one.
+    - `sensors`: what the controller reads, as in `simulate_system`: `"oracle"`
+      (default, perfect information) or a `Sensors` set (e.g.
+      `realistic_sensors(system)`), the law then inside an `ObserverBasedController`
+      whose estimator and observer can be tuned with it
+      (`ObserverBasedController.tunable`).
+    - `sensor_key`: the `jax.random` key of the sensors' noise, required with
+      `sensors`. Each gradient step draws fresh noise on every road (the gradient is
+      taken through the sampled noise: a stochastic gradient over the noise, as over
+      the roads); the hard-law checks, the losses reported and the held-out loss
+      read one fixed draw, road $i$'s from `jax.random.fold_in(sensor_key, i)`,
+      as `evaluate` draws it, so that every comparison is paired (a law tuned
+      without relaxation is judged on its gradient's own loss, so its steps read
+      that fixed draw too). Every damper sample reads its road's noise.
     - `sampling`, `integrator`: the controller's timing (a `Sampling`) and the RK4
       steps per sample (a `FixedStep`), as in `simulate_system`, whose defaults they
-      share; the deprecated `dt`, `substeps` and `delay` still work, as there.
+      share (an `ObserverBasedController`'s own `sampling` when none is given); the
+      deprecated `dt`, `substeps` and `delay` still work, as there.
     - `log_space`: optimise logarithms (default: positive parameters, relative
-      steps); `False` optimises the values (signed weights, `CurrentSchedule.logits`).
-    - `bounds`: optional `(low, high)` per parameter (positive): the parameter is
-      then mapped from an unbounded variable through a sigmoid in log space.
+      steps); `False` optimises the values (signed weights, `CurrentSchedule.logits`);
+      or one bool per parameter (signed weights tuned with positive filter corners).
+    - `bounds`: optional `(low, high)` per parameter (positive; `None` for an
+      unbounded one): the parameter is then mapped from an unbounded variable
+      through a sigmoid in log space.
     - `progress`: a line per step (True), nothing (False), or `progress(step, loss)`.
 
     **Returns:** a `TuneResult`.
     """
+    sampling = own_sampling(controller, sampling, deprecated)
     sampling, integrator = loop_settings("tune", sampling, integrator, deprecated)
+    noise = sensor_noise(sensors, sensor_key, "tune")
     if not isinstance(steps, int) or steps < 1:
         raise ValueError(f"tune: `steps` must be a positive integer, got {steps!r}.")
     if not isinstance(check_every, int) or check_every < 1:
@@ -180,9 +208,18 @@ def tune(
 
     def check(u, step):
         nonlocal simulations, checked_u
-        judge(u, to_host(losses(u, hard, samples, batch, setup)[1]), step)
+        judge(u, to_host(losses(u, hard, samples, batch, setup, noise)[1]), step)
         simulations += runs
         checked_u = u
+
+    def training_noise(k):
+        # Fresh noise at every step for the gradient; the hard law is judged on the
+        # fixed draw (`check`). A law judged at every step (no relaxation) is judged
+        # on the gradient's own loss: that draw too, for paired comparisons.
+        if noise is None or not relaxed:
+            return noise
+        sensors, key = noise
+        return sensors, jax.random.fold_in(jax.random.split(key)[1], k)
 
     m = tuple(jnp.zeros_like(v) for v in u)
     s = tuple(jnp.zeros_like(v) for v in u)
@@ -198,7 +235,9 @@ def tune(
                 if relaxed
                 else hard
             )
-            value, grads, _ = loss_and_grad(u, pair, samples, batch, setup)
+            value, grads, _ = loss_and_grad(
+                u, pair, samples, batch, setup, training_noise(k)
+            )
             value = to_host(value)
             simulations += runs
             if not relaxed:
@@ -232,6 +271,7 @@ def tune(
         history=history,
         samples=samples,
         validation=validation,
+        noise=noise,
         simulations=simulations,
         start=start,
         reason=reason,

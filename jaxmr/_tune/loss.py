@@ -34,7 +34,20 @@ class Setup:
     worst_share: float = 1.0
 
 
-def _one_run(u, system, controller, road, setup: Setup):
+def sensing(noise, index) -> dict:
+    """`simulate_system`'s keywords for road `index` of a batch read through
+    `noise = (sensors, key)`: the road's noise from `jax.random.fold_in(key, index)`
+    (none for perfect information, `noise` None)."""
+    if noise is None:
+        return {}
+    sensors, key = noise
+    return {"sensors": sensors, "key": jax.random.fold_in(key, index)}
+
+
+def _one_run(u, system, controller, run, setup: Setup, noise=None):
+    """The objective of one road `run = (road, index)`, read through `noise =
+    (sensors, key)` (None: perfect information)."""
+    road, index = run
     system, controller = eqx.tree_at(
         setup.where, (system, controller), to_values(u, setup.space)
     )
@@ -49,12 +62,13 @@ def _one_run(u, system, controller, road, setup: Setup):
         # Unrolled substeps: the reverse pass of tuning's gradient ran 1.5-2x faster
         # (`simulate_system`); past 8 the compile time is not worth it.
         unroll=min(setup.integrator.substeps, 8),
+        **sensing(noise, index),
     )
     return setup.objective(solution)
 
 
 def _over_runs(fn, system, samples, roads):
-    """`fn(system, road)` for every road, and for every damper sample when `samples`
+    """`fn(system, run)` for every run `(road, index)` of `roads`, and for every damper sample when `samples`
     (a batch of systems, one leading axis) is given: shape (roads,) or (samples,
     roads)."""
 
@@ -103,27 +117,31 @@ def mean_or_inf(values, valid=None, share: float = 1.0):
 
 
 @eqx.filter_jit
-def losses(u, pair, samples, batch, setup: Setup):
+def losses(u, pair, samples, batch, setup: Setup, noise=None):
     """The objective of every run of a `road_batch`, shape (roads,) or (samples,
-    roads), padding included, and the batch's mean (`mean_or_inf`)."""
+    roads), padding included, and the batch's mean (`mean_or_inf`); `noise`:
+    `(sensors, key)` for the controller to read sensors (`sensing`), or None."""
     system, controller = pair
     roads, valid = batch
     values = _over_runs(
-        lambda s, road: _one_run(u, s, controller, road, setup), system, samples, roads
+        lambda s, road: _one_run(u, s, controller, road, setup, noise),
+        system,
+        samples,
+        roads,
     )
     return values, mean_or_inf(values, valid, setup.worst_share)
 
 
 @eqx.filter_jit
-def population_losses(us, pair, samples, batch, setup: Setup):
+def population_losses(us, pair, samples, batch, setup: Setup, noise=None):
     """`mean_or_inf` of the runs of a `road_batch` for every candidate (the leading
-    axis of each u)."""
+    axis of each u), every candidate on the same `noise` (as `losses`)."""
     system, controller = pair
     roads, valid = batch
 
     def one(u):
         values = _over_runs(
-            lambda s, road: _one_run(u, s, controller, road, setup),
+            lambda s, road: _one_run(u, s, controller, road, setup, noise),
             system,
             samples,
             roads,
@@ -134,8 +152,9 @@ def population_losses(us, pair, samples, batch, setup: Setup):
 
 
 @eqx.filter_jit
-def loss_and_grad(u, pair, samples, batch, setup: Setup):
-    """The mean objective and its gradient with respect to u, NaN-safe.
+def loss_and_grad(u, pair, samples, batch, setup: Setup, noise=None):
+    """The mean objective and its gradient with respect to u, NaN-safe (`noise` as
+    in `losses`: the gradient is taken through the sampled noise).
 
     Every run is differentiated on its own (under `vmap`): a run whose value or
     gradient is not finite (a diverged road) drops out of the gradient, which is the
@@ -147,7 +166,9 @@ def loss_and_grad(u, pair, samples, batch, setup: Setup):
     roads, valid = batch
 
     def one(s, road):
-        return jax.value_and_grad(lambda u: _one_run(u, s, controller, road, setup))(u)
+        return jax.value_and_grad(
+            lambda u: _one_run(u, s, controller, road, setup, noise)
+        )(u)
 
     values, grads = _over_runs(one, system, samples, roads)
     ok = jnp.isfinite(values) & jnp.broadcast_to(valid, values.shape)

@@ -12,13 +12,21 @@ from jax.flatten_util import ravel_pytree
 
 from .._closed_loop import Sampling, SystemSolution, loop_settings
 from .._control.base import AbstractController
+from .._control.sensors import Sensors
 from .._distribute import to_host
 from .._integrate import FixedStep
 from .._systems.base import AbstractSystem
-from .common import finite_min, prepare, printer, tune_result
+from .common import (
+    finite_min,
+    own_sampling,
+    prepare,
+    printer,
+    sensor_noise,
+    tune_result,
+)
 from .loss import comfort, population_losses
 from .result import TuneResult
-from .space import as_space
+from .space import as_space, per_leaf
 
 
 def _prepare(who, simulations, *args):
@@ -42,12 +50,14 @@ def random_search(
     objective: Callable[[SystemSolution], jax.Array] = comfort,
     spread: float = 10.0,
     population: int = 8,
-    log_space: bool = True,
-    bounds: Sequence[tuple[float, float]] | None = None,
+    log_space: bool | Sequence[bool] = True,
+    bounds: Sequence[tuple[float, float] | None] | None = None,
     validation=None,
     samples: AbstractSystem | None = None,
     worst_share: float = 1.0,
     key: jax.Array | None = None,
+    sensors: Sensors | str = "oracle",
+    sensor_key: jax.Array | None = None,
     sampling: Sampling | None = None,
     integrator: FixedStep | None = None,
     progress: bool | Callable = False,
@@ -59,14 +69,19 @@ def random_search(
 
     Candidates are uniform within a factor `spread` of the start in log space
     (clipped to `bounds` when given), or within ± `spread` of it with
-    `log_space=False`; `population` of them are simulated together under `vmap`.
+    `log_space=False` (per parameter, when `log_space` gives one bool per
+    parameter); `population` of them are simulated together under `vmap`.
 
-    **Arguments:** as `tune` (`worst_share` included), plus `simulations` (the
-    budget: give `tune`'s `TuneResult.simulations` for an equal-budget comparison),
-    `spread`, `population`, `key`.
+    **Arguments:** as `tune` (`worst_share`, `sensors` and `sensor_key` included:
+    every candidate reads the same fixed noise, `tune`'s judging draw), plus
+    `simulations` (the budget: give `tune`'s `TuneResult.simulations` for an
+    equal-budget comparison), `spread`, `population`,
+    `key` (the candidates' draw, not the noise).
     """
     who = "random_search"
+    sampling = own_sampling(controller, sampling, deprecated)
     sampling, integrator = loop_settings(who, sampling, integrator, deprecated)
+    noise = sensor_noise(sensors, sensor_key, who)
     as_space(log_space, bounds, who)  # checks the bounds
     # Candidates are drawn and clipped in log values (or values): no sigmoid here.
     runs, setup, pair, u0, batch = _prepare(
@@ -87,21 +102,37 @@ def random_search(
     )
     trials = simulations // runs
     flat0, unravel = ravel_pytree(u0)
-    width = np.log(spread) if log_space else spread
+    # Per leaf: a factor `spread` in log space, ± `spread` in values, and the bounds'
+    # logarithms (inf where unbounded) to clip to.
+    leaves = per_leaf(as_space(log_space, bounds, who), len(u0))
+    if len(leaves) != len(u0):
+        raise ValueError(
+            f"{who}: `bounds` give {len(leaves)} entries, but `parameters` selected "
+            f"{len(u0)} arrays: give one per array."
+        )
+    width, _ = ravel_pytree(
+        tuple(
+            jnp.full_like(u, spread if entry is False else np.log(spread))
+            for u, entry in zip(u0, leaves, strict=True)
+        )
+    )
     key = jax.random.key(0) if key is None else key
     draws = flat0 + width * jax.random.uniform(
         key, (trials, flat0.size), flat0.dtype, -1.0, 1.0
     )
     draws = draws.at[0].set(flat0)
-    if bounds is not None:
+    bounded = [isinstance(entry, tuple) for entry in leaves]
+    if any(bounded):
         lo, _ = ravel_pytree(
             tuple(
-                jnp.full_like(u, np.log(b[0])) for u, b in zip(u0, bounds, strict=True)
+                jnp.full_like(u, np.log(e[0]) if b else -np.inf)
+                for u, e, b in zip(u0, leaves, bounded, strict=True)
             )
         )
         hi, _ = ravel_pytree(
             tuple(
-                jnp.full_like(u, np.log(b[1])) for u, b in zip(u0, bounds, strict=True)
+                jnp.full_like(u, np.log(e[1]) if b else np.inf)
+                for u, e, b in zip(u0, leaves, bounded, strict=True)
             )
         )
         draws = jnp.clip(draws, lo, hi)
@@ -118,7 +149,7 @@ def random_search(
     try:
         for j in range(0, trials, size):
             us = jax.vmap(unravel)(padded[j : j + size])
-            chunk = to_host(population_losses(us, pair, samples, batch, setup))
+            chunk = to_host(population_losses(us, pair, samples, batch, setup, noise))
             scores.extend(chunk[: trials - j])
             best = finite_min(scores)[1]
             history.extend([best] * len(chunk[: trials - j]))
@@ -137,10 +168,21 @@ def random_search(
         history=history,
         samples=samples,
         validation=validation,
+        noise=noise,
         simulations=len(scores) * runs,
         start=start,
         reason=reason,
     )
+
+
+@functools.lru_cache(maxsize=16)
+def _cma_strategy(cma_class, size: int, dimension: int, dtype: str):
+    """One evosax CMA-ES strategy per (population, dimension, dtype). evosax jits
+    `init`, `ask` and `tell` with the strategy as a static argument (hashed by
+    identity), so a new strategy per call compiled all three again on every
+    `cma_es` call (2–7 s each): a reused one compiles once. The strategy keeps only
+    the solution's structure, not its values."""
+    return cma_class(population_size=size, solution=jnp.zeros((dimension,), dtype))
 
 
 def cma_es(
@@ -155,12 +197,14 @@ def cma_es(
     sigma: float = 0.5,
     population: int | None = None,
     target: float | None = None,
-    log_space: bool = True,
-    bounds: Sequence[tuple[float, float]] | None = None,
+    log_space: bool | Sequence[bool] = True,
+    bounds: Sequence[tuple[float, float] | None] | None = None,
     validation=None,
     samples: AbstractSystem | None = None,
     worst_share: float = 1.0,
     key: jax.Array | None = None,
+    sensors: Sensors | str = "oracle",
+    sensor_key: jax.Array | None = None,
     sampling: Sampling | None = None,
     integrator: FixedStep | None = None,
     progress: bool | Callable = False,
@@ -176,10 +220,12 @@ def cma_es(
     sigmoid variables of `bounds`), started at the given parameters with step size
     `sigma` in those variables (0.5 in log space: a factor 1.6).
 
-    **Arguments:** as `tune` (`worst_share` included), plus `simulations` (the
-    budget), `sigma`, `population` (default: CMA-ES's own 4 + 3 ln(dimension)),
-    `target` (stop once the best training loss is at or below it: how many
-    simulations a given loss costs), `key`.
+    **Arguments:** as `tune` (`worst_share`, `sensors` and `sensor_key` included:
+    every candidate reads the same fixed noise, `tune`'s judging draw, so that a
+    generation is ranked on paired runs), plus `simulations` (the budget), `sigma`,
+    `population` (default: CMA-ES's own 4 + 3 ln(dimension)), `target` (stop once the
+    best training loss is at or below it: how many simulations a given loss costs),
+    `key` (the strategy's draws, not the noise).
 
     Needs the optional dependency `evosax` (`pip install "jaxmr[search]"`).
     """
@@ -190,7 +236,9 @@ def cma_es(
             'cma_es needs evosax: pip install "jaxmr[search]" (or evosax).'
         ) from error
     who = "cma_es"
+    sampling = own_sampling(controller, sampling, deprecated)
     sampling, integrator = loop_settings(who, sampling, integrator, deprecated)
+    noise = sensor_noise(sensors, sensor_key, who)
     runs, setup, pair, u0, batch = _prepare(
         who,
         simulations,
@@ -218,7 +266,7 @@ def cma_es(
     # whatever the user's `jax_numpy_dtype_promotion` setting.
     standard = functools.partial(jax.numpy_dtype_promotion, "standard")
     with standard():
-        strategy = CMA_ES(population_size=size, solution=flat0)
+        strategy = _cma_strategy(CMA_ES, size, flat0.size, str(flat0.dtype))
         params = dataclasses.replace(
             strategy.default_params, std_init=jnp.asarray(sigma, flat0.dtype)
         )
@@ -230,7 +278,7 @@ def cma_es(
     initial = float(
         to_host(
             population_losses(
-                jax.vmap(unravel)(flat0[None]), pair, samples, batch, setup
+                jax.vmap(unravel)(flat0[None]), pair, samples, batch, setup, noise
             )
         )[0]
     )
@@ -248,7 +296,7 @@ def cma_es(
                 candidates, state = strategy.ask(ask_key, state, params)
             scores = to_host(
                 population_losses(
-                    jax.vmap(unravel)(candidates), pair, samples, batch, setup
+                    jax.vmap(unravel)(candidates), pair, samples, batch, setup, noise
                 )
             )
             spent += size * runs
@@ -274,6 +322,7 @@ def cma_es(
         history=history,
         samples=samples,
         validation=validation,
+        noise=noise,
         simulations=spent,
         start=start,
         reason=reason,

@@ -22,7 +22,8 @@ def per_leaf(space, count: int) -> tuple:
 
 def to_values(us, space) -> tuple:
     return tuple(
-        _to_value(u, entry) for u, entry in zip(us, per_leaf(space, len(us)), strict=True)
+        _to_value(u, entry)
+        for u, entry in zip(us, per_leaf(space, len(us)), strict=True)
     )
 
 
@@ -90,7 +91,9 @@ def as_space(log_space, bounds, who: str):
             space.append(log)
             continue
         if not log:
-            raise ValueError(f"{who}: `bounds` need `log_space=True` (for that parameter).")
+            raise ValueError(
+                f"{who}: `bounds` need `log_space=True` (for that parameter)."
+            )
         lo, hi = (float(b) for b in bound)
         if not 0 < lo < hi:
             raise ValueError(f"{who}: `bounds` must be 0 < low < high, got {bounds}.")

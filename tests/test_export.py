@@ -1,0 +1,325 @@
+"""Export of a tuned controller: the C99 that `jaxmr.export_c` writes, compiled with
+the system C compiler, gives the JAX controller's commands on the same measurements
+(to 1e-9 A) and the same comfort in the closed loop; the StableHLO program that
+`jaxmr.export_stablehlo` writes gives them too; neither overwrites a file."""
+
+import sys
+from pathlib import Path
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import jaxmr
+import jaxmr.metrics
+from jaxmr._cli import main
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+from _compile_c import CompiledController  # noqa: E402
+
+T = 0.5  # [s] of road for the closed-loop runs
+DT = 1e-3  # [s] the controllers' sample time (Sampling's default)
+# C and JAX evaluate the same operations in the same order in float64; they differ
+# only where libm and XLA round a transcendental function (pow, exp, tanh, log1p)
+# differently, by an ulp or so, which the filters and the observer carry along
+# without growth (all contract). 1e-9 A is what the issue asks; the measured gap is
+# some 1e-15 A.
+COMMAND_TOLERANCE = 1e-9
+
+
+def _observer_based(law, damper=None, gain=0.1):
+    return jaxmr.ObserverBasedController(
+        law,
+        estimator=jaxmr.VelocityEstimator(),
+        observer=jaxmr.DamperObserver(
+            jaxmr.passenger_car_mr_damper() if damper is None else damper, gain=gain
+        ),
+    )
+
+
+# The device a controller with an observer never reads (it inverts its own model).
+_UNREAD = jaxmr.DamperPlant(
+    jaxmr.passenger_car_mr_damper(),
+    jnp.full(2, jnp.nan),
+    jnp.asarray(jnp.nan),
+    jnp.asarray(jnp.nan),
+)
+
+
+@eqx.filter_jit
+def _replay(controller, names, inputs):
+    """The JAX controller's commands [A] on the rows of `inputs` (its `init` at the
+    first, then one call per row), as `simulate_system` runs it."""
+
+    def measurement(row):
+        return {n: row[i] for i, n in enumerate(names)}
+
+    def one(state, row):
+        command, state = controller(measurement(row), state, _UNREAD)
+        return state, command
+
+    return jax.lax.scan(one, controller.init(measurement(inputs[0])), inputs)[1]
+
+
+def _compiled(controller, folder, name, names):
+    jaxmr.export_c(controller, folder, name=name, measurements=names)
+    return CompiledController(folder, name)
+
+
+def _synthetic(names, samples=1500, seed=0):
+    """Readings of a suspension stroking at 1.3 and 9 Hz, with noise and biases: the
+    deflection [m], the accelerations [m/s²] and a damper force [N]."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(samples) * DT
+    w1, w2 = 2 * np.pi * 1.3, 2 * np.pi * 9.0
+    x = 0.01 * np.sin(w1 * t) + 0.002 * np.sin(w2 * t)
+    v = 0.01 * w1 * np.cos(w1 * t) + 0.002 * w2 * np.cos(w2 * t)
+    signals = {
+        "damper_displacement": x + 1e-4 * rng.standard_normal(samples),
+        "body_acceleration": -0.3 * w1**2 * x
+        + 0.1
+        + 0.05 * rng.standard_normal(samples),
+        "wheel_acceleration": 0.7 * w2**2 * x
+        - 0.5
+        + 0.3 * rng.standard_normal(samples),
+        "damper_force": 600 * np.tanh(v / 0.02)
+        + 900 * v
+        + 5 * rng.standard_normal(samples),
+    }
+    return np.stack([signals[n] for n in names], axis=1)
+
+
+# -- the recorded closed loop ----------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def car():
+    return jaxmr.passenger_car(jaxmr.passenger_car_mr_damper())
+
+
+@pytest.fixture(scope="module")
+def skyhook():
+    # Relaxed: the closed loop's comfort is then continuous in the commands.
+    return _observer_based(jaxmr.Skyhook(2000.0, 1.0, temperature=0.1))
+
+
+@pytest.fixture(scope="module")
+def recorded(car, skyhook):
+    """A closed-loop run on the car's realistic sensors: the readings the controller
+    got (samples x measurements, in `names` order) and the run."""
+    sensors = jaxmr.realistic_sensors(car)
+    road = jaxmr.iso8608_road("C", 20.0, T, jax.random.key(0))
+    sol = jaxmr.simulate_system(
+        car, road, skyhook, T, sensors=sensors, key=jax.random.key(1)
+    )
+    assert sol.measured is not None
+    names = sensors.names
+    inputs = np.stack([np.asarray(sol.measured[n]) for n in names], axis=1)
+    return names, inputs, sol, road, sensors
+
+
+def test_the_c_controller_gives_the_jax_commands_on_recorded_readings(
+    tmp_path, skyhook, recorded
+):
+    names, inputs, sol, *_ = recorded
+    c = _compiled(skyhook, tmp_path, "skyhook", names)
+    ours = np.asarray(_replay(skyhook, names, jnp.asarray(inputs)))
+    # The replay is the closed loop's controller: its commands are the run's.
+    np.testing.assert_allclose(ours, np.asarray(sol.command), rtol=0, atol=1e-12)
+    assert np.ptp(ours) > 0.25  # the law acts (a third of its range: measured 0.34)
+    np.testing.assert_allclose(c.run(inputs), ours, rtol=0, atol=COMMAND_TOLERANCE)
+    header = (tmp_path / "skyhook.h").read_text()
+    assert "#define SKYHOOK_SAMPLE_PERIOD 0.001" in header
+    assert "Sample period: 0.001 s" in header
+
+
+class _CInTheLoop(jaxmr.AbstractController):
+    """The compiled C controller as a jaxmr controller: its state the C struct's
+    bytes, each step a pure callback (so that `simulate_system` may call it as it
+    calls any controller)."""
+
+    i_max: jax.Array
+    names: tuple[str, ...] = eqx.field(static=True)
+    c: CompiledController = eqx.field(static=True)
+
+    def init(self, measurement):
+        inputs = jnp.stack([measurement[n] for n in self.names])
+        shape = jax.ShapeDtypeStruct((self.c.state_size,), jnp.uint8)
+        return jax.pure_callback(self.c.init, shape, inputs)
+
+    def __call__(self, measurement, state, plant):
+        inputs = jnp.stack([measurement[n] for n in self.names])
+        shapes = (
+            jax.ShapeDtypeStruct((), inputs.dtype),
+            jax.ShapeDtypeStruct(state.shape, state.dtype),
+        )
+        return jax.pure_callback(self.c.step, shapes, state, inputs)
+
+
+def test_the_c_controller_in_the_loop_gives_the_same_comfort(
+    tmp_path, car, skyhook, recorded
+):
+    names, _, sol, road, sensors = recorded
+    c = _compiled(skyhook, tmp_path, "skyhook", names)
+    in_the_loop = jaxmr.simulate_system(
+        car,
+        road,
+        _CInTheLoop(jnp.asarray(1.0), names, c),
+        T,
+        sensors=sensors,
+        key=jax.random.key(1),
+        sampling=skyhook.sampling,
+    )
+    np.testing.assert_allclose(
+        np.asarray(in_the_loop.command), np.asarray(sol.command), rtol=0, atol=1e-9
+    )
+    # Commands equal to 1e-9 A through a stable loop: the comfort figure agrees to
+    # 1e-9 relative (measured: some 1e-15).
+    ours, theirs = (float(jaxmr.metrics.comfort(s)) for s in (sol, in_the_loop))
+    assert theirs == pytest.approx(ours, rel=1e-9)
+
+
+# -- other laws and dampers, on synthetic readings -------------------------------------
+
+
+def _rich_law(features, model=None):
+    """`ForceFeedback.mlp` with width 16 and depth 1 (84 weights on three features),
+    its weights drawn (its zero start would command nothing)."""
+    law = jaxmr.ForceFeedback.mlp(
+        (0.2, 2.0, 0.3),
+        1.0,
+        features=features,
+        width=16,
+        depth=1,
+        key=jax.random.key(3),
+        model=model,
+    )
+    leaves, tree = jax.tree.flatten(eqx.filter(law.network, eqx.is_array))
+    keys = jax.random.split(jax.random.key(4), len(leaves))
+    drawn = [0.5 * jax.random.normal(k, x.shape, x.dtype) for k, x in zip(keys, leaves)]
+    network = eqx.combine(jax.tree.unflatten(tree, drawn), law.network)
+    return eqx.tree_at(lambda f: f.network, law, network)
+
+
+@pytest.mark.parametrize("case", ["mlp", "spencer", "on-off"])
+def test_the_c_controller_gives_the_jax_commands(tmp_path, case):
+    car_sensors = ("body_acceleration", "damper_displacement", "wheel_acceleration")
+    if case == "mlp":
+        # The 84-weight law, inverting its own model (a stiffer unit of the same
+        # family, other current laws) at the state of an observer corrected by a
+        # load cell.
+        stiffer = jaxmr.Damper(
+            jaxmr.BoucWen(
+                alpha=jaxmr.LinearLaw(4e4, 1.1e6),
+                c0=jaxmr.PolynomialLaw(np.array([250.0, 1500.0, 300.0])),
+                A=1.0,
+                beta=400.0,
+                gamma=600.0,
+                n=1.5,
+            )
+        )
+        features = ("body_velocity", "body_acceleration", "damper_velocity")
+        controller = _observer_based(_rich_law(features, stiffer))
+        names = car_sensors + ("damper_force",)
+    elif case == "spencer":
+        # Spencer's voltage-driven damper (its 190 1/s filter integrated by the
+        # observer), corrected by a load cell, under the hard skyhook law. Its z is
+        # stiff (d(dz/dt)/dz = -2 (beta + gamma) |u| z0 = -9e4 |u| 1/s): at 0.2 m/s
+        # four RK4 substeps of 0.25 ms sit at RK4's stability edge, where each
+        # substep amplifies a difference of one ulp (XLA's pow against libm's) and
+        # the commands drift apart by 1e-8 A over the run, in C and JAX alike; 16
+        # substeps keep h |lambda| < 0.6, and the two agree to 1e-13 A.
+        controller = jaxmr.ObserverBasedController(
+            jaxmr.Skyhook(1500.0, 2.25),
+            estimator=jaxmr.VelocityEstimator(),
+            observer=jaxmr.DamperObserver(jaxmr.spencer_1997(), gain=0.3, substeps=16),
+        )
+        names = car_sensors + ("damper_force",)
+    else:
+        # No observer, no wheel accelerometer, another sample time and no delay.
+        controller = jaxmr.ObserverBasedController(
+            jaxmr.OnOffSkyhook(1.0, temperature=0.2),
+            estimator=jaxmr.VelocityEstimator(crossover=3.0),
+            sampling=jaxmr.Sampling(2e-3, 0),
+        )
+        names = ("damper_displacement", "body_acceleration")
+    inputs = _synthetic(names)
+    ours = np.asarray(_replay(controller, names, jnp.asarray(inputs)))
+    assert np.ptp(ours) > 0.3  # the law acts
+    c = _compiled(controller, tmp_path, "law", names)
+    np.testing.assert_allclose(c.run(inputs), ours, rtol=0, atol=COMMAND_TOLERANCE)
+
+
+# -- StableHLO -------------------------------------------------------------------------
+
+
+def test_the_stablehlo_program_gives_the_jax_commands(tmp_path, skyhook, recorded):
+    names, inputs, sol, *_ = recorded
+    path = tmp_path / "skyhook.stablehlo"
+    jaxmr.export_stablehlo(skyhook, path, measurements=names)
+    program = jax.export.deserialize(bytearray(path.read_bytes()))
+
+    @jax.jit
+    def run(inputs):
+        size = program.in_avals[0].shape[0]
+        first = jnp.arange(inputs.shape[0]) == 0
+
+        def one(state, row):
+            command, state = program.call(state, row[1:], row[0] > 0)
+            return state, command
+
+        rows = jnp.concatenate([first[:, None].astype(inputs.dtype), inputs], axis=1)
+        return jax.lax.scan(one, jnp.zeros(size, inputs.dtype), rows)[1]
+
+    commands = np.asarray(run(jnp.asarray(inputs)))
+    np.testing.assert_allclose(
+        commands, np.asarray(sol.command), rtol=0, atol=COMMAND_TOLERANCE
+    )
+
+
+# -- files and refusals ----------------------------------------------------------------
+
+
+def test_an_export_never_replaces_a_file_unless_forced(tmp_path, skyhook):
+    source = tmp_path / "controller.c"
+    source.write_text("mine")
+    with pytest.raises(FileExistsError, match="force=True"):
+        jaxmr.export_c(skyhook, tmp_path)
+    assert source.read_text() == "mine"
+    assert not (tmp_path / "controller.h").exists()  # nothing written
+    header, written = jaxmr.export_c(skyhook, tmp_path, force=True)
+    assert written == source and "controller_step" in source.read_text()
+    assert header.name == "controller.h"
+    with pytest.raises(FileExistsError):
+        jaxmr.export_stablehlo(skyhook, header)
+
+
+def test_what_has_no_c_writer_says_so(skyhook):
+    groundhook = jaxmr.ObserverBasedController(
+        jaxmr.Groundhook(2000.0, 1.0),
+        estimator=jaxmr.VelocityEstimator(),
+        observer=jaxmr.DamperObserver(jaxmr.passenger_car_mr_damper()),
+    )
+    with pytest.raises(NotImplementedError, match="Groundhook"):
+        jaxmr.export_c(groundhook, "unused")
+    bingham = _observer_based(
+        jaxmr.Skyhook(2000.0, 1.0), damper=jaxmr.sas_brake_bingham()
+    )
+    with pytest.raises(NotImplementedError, match="Bingham"):
+        jaxmr.export_c(bingham, "unused")
+    with pytest.raises(NotImplementedError, match="ObserverBasedController"):
+        jaxmr.export_c(jaxmr.Skyhook(2000.0, 1.0), "unused")
+    with pytest.raises(ValueError, match="C identifier"):
+        jaxmr.export_c(skyhook, "unused", name="my-law")
+
+
+def test_the_command_line_exports_a_saved_controller(tmp_path, skyhook):
+    saved = tmp_path / "skyhook.json"
+    jaxmr.save_model(skyhook, saved)
+    out = tmp_path / "out"
+    assert main(["export", saved, "--out", out, "--name", "sky", "--stablehlo"]) == 0
+    assert {p.name for p in out.iterdir()} == {"sky.h", "sky.c", "sky.stablehlo"}
+    assert main(["export", saved, "--out", out, "--name", "sky"]) == 1  # exists
+    assert main(["export", saved, "--out", out, "--name", "sky", "--force"]) == 0
