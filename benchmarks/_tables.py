@@ -475,6 +475,51 @@ TABLES = (
             Row("seconds", "whole run [s]"),
         ),
     ),
+    Table(
+        "utfsm_held_out",
+        "utfsm_held_out.py",
+        (
+            Row("choice", "`jaxmr fit`'s choice on the 0, 0.5, 1 A files"),
+            Row(
+                "all_30_median_nrmse",
+                "its median NRMSE on all 30 files",
+                at_most(0.07, 25),
+            ),
+            Row("held_out_median_nrmse", "on the 12 held-out (0.25, 0.75 A) files"),
+            Row(
+                "published_held_out_median_nrmse",
+                "the published model on the same 12",
+            ),
+            Row("held_out_better_than_published", "held-out files where it is better"),
+        ),
+    ),
+    Table(
+        "realistic_control",
+        "realistic_control.py",
+        (
+            Row("comfort_perfect", "(a) today's law, perfect information"),
+            Row(
+                "comfort_realistic_joint",
+                "(b) law and estimator tuned together, realistic sensors",
+                at_least(0.14, 29),
+            ),
+            Row(
+                "comfort_realistic_deployed",
+                "(c) tuned with perfect information, run with realistic sensors",
+            ),
+        ),
+    ),
+    Table(
+        "export_c",
+        "export_c.py",
+        (
+            Row(
+                "c_step_microseconds",
+                "exported C step, 84-weight law with its observer [µs]",
+                at_most(5, 29),
+            ),
+        ),
+    ),
 )
 
 

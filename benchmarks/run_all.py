@@ -106,6 +106,9 @@ BENCHMARKS = (
     ),
     Benchmark("opensees_check", "opensees_check.py", requires=("openseespy",)),
     Benchmark("experiment_design", "experiment_design.py"),
+    Benchmark("realistic_control", "realistic_control.py"),
+    Benchmark("export_c", "export_c.py"),
+    Benchmark("utfsm_held_out", "utfsm_held_out.py"),
     Benchmark(
         "fit_each_scaling",
         "fit_each_scaling.py",
