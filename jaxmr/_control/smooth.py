@@ -166,8 +166,18 @@ def with_temperature(controllers, temperature):
         return node
 
     # The relaxable laws as the leaves: the map descends through everything else,
-    # wrappers included, down to the laws they hold.
-    return jax.tree.map(set_one, controllers, is_leaf=_relaxable)
+    # wrappers included, down to the laws they hold. A controller holding no
+    # relaxable law is a leaf too, returned as the same object (not rebuilt).
+    def leaf(node):
+        return _relaxable(node) or (
+            isinstance(node, AbstractController) and not _holds_relaxable(node)
+        )
+
+    return jax.tree.map(set_one, controllers, is_leaf=leaf)
+
+
+def _holds_relaxable(node) -> bool:
+    return any(_relaxable(x) for x in jax.tree.leaves(node, is_leaf=_relaxable))
 
 
 def _relaxable(node) -> bool:
