@@ -476,8 +476,8 @@ TABLES = (
         ),
     ),
     Table(
-        "utfsm_held_out",
-        "utfsm_held_out.py",
+        "held_out_currents",
+        "held_out_currents.py",
         (
             Row("choice", "`jaxmr fit`'s choice on the 0, 0.5, 1 A files"),
             Row(

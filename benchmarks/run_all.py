@@ -108,7 +108,7 @@ BENCHMARKS = (
     Benchmark("experiment_design", "experiment_design.py"),
     Benchmark("realistic_control", "realistic_control.py"),
     Benchmark("export_c", "export_c.py"),
-    Benchmark("utfsm_held_out", "utfsm_held_out.py"),
+    Benchmark("held_out_currents", "held_out_currents.py"),
     Benchmark(
         "fit_each_scaling",
         "fit_each_scaling.py",

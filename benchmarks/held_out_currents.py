@@ -16,7 +16,7 @@ Figures: `held_out_median_nrmse` (goal: below `published_held_out_median_nrmse`)
 `all_30_median_nrmse` (goal ≤ 0.07), `held_out_better_than_published` (files),
 `choice`, `seconds` (the whole command, compilation included).
 
-    python benchmarks/utfsm_held_out.py --json benchmarks/results/utfsm_held_out.json
+    python benchmarks/held_out_currents.py --json benchmarks/results/held_out_currents.json
 
 Takes about 5–10 minutes on an idle 2-core machine. The held-out currents were looked
 at while the defaults were developed (the UTFSM files are in the leave-one-dataset-out
