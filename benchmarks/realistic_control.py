@@ -16,8 +16,9 @@ relaxation annealed 0.1 -> 0.05.
 Three controllers, each scored against the best constant current (chosen on the
 development roads) on fresh held-out roads drawn after every setting is frozen:
 
-- (a) `comfort_perfect`: the law tuned and run with perfect information (every true
-  measurement and the simulated damper's own state for its inverse model).
+- (a) `comfort_perfect`: the law tuned and run with perfect information
+  (`sensors="oracle"`: every true measurement and the simulated damper's own state
+  for its inverse model).
 - (b) `comfort_realistic_joint`: the law and its `VelocityEstimator` (crossover,
   damping, high-pass corner) tuned together from the same generic start through the
   sampled noise of `realistic_sensors(car)` (body and wheel accelerometers, the
@@ -160,9 +161,11 @@ def main():
     )
     tuning = {}
 
-    # (a) perfect information.
+    # (a) perfect information: the law inverts the simulated damper at its true
+    # state (`sensors="oracle"`, which no car has: the research reference).
+    oracle = dict(sensors="oracle")
     perfect = jaxmr.tune(
-        car, start, train, T, parameters=weights, log_space=False, **schedule
+        car, start, train, T, parameters=weights, log_space=False, **oracle, **schedule
     )
     tuning["perfect"] = perfect
     print(f"(a) tuned with perfect information in {perfect.seconds:.0f} s", flush=True)
@@ -192,7 +195,7 @@ def main():
         "best_constant": mean_comfort(
             jaxmr.ConstantCurrent(best_constant, I_MAX), fresh
         ),
-        "perfect": mean_comfort(perfect.controller, fresh),
+        "perfect": mean_comfort(perfect.controller, fresh, **oracle),
         "realistic_joint": mean_comfort(joint.controller, fresh, **noise),
         "realistic_deployed": mean_comfort(deployed, fresh, **noise),
     }

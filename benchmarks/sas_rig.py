@@ -19,6 +19,8 @@ unchanged: its brake's orientation is the quarter car's, `damper_displacement` =
 minus wheel arm): backstepping (source doc 001 §7.1; `jaxmr.Backstepping` with
 $g = -1/J_2$), on/off and continuous skyhook, and the acceleration-driven damper. If
 jaxmr has no `Backstepping`, the script's own rig law (same equations) stands in.
+Every law runs with perfect information (`sensors="oracle"`: the inverse brake model
+reads the simulated brake's true state), as the source's simulations do.
 
 Compile and run are timed apart (first call minus the best of the repeated calls).
 
@@ -112,7 +114,11 @@ def timed(fn, *args, repeats):
 @eqx.filter_jit
 def decay_summary(rig, controller):
     solution = free_decay(
-        rig, controller, release_angle_deg=RELEASE_DEG, duration=DECAY_S
+        rig,
+        controller,
+        release_angle_deg=RELEASE_DEG,
+        duration=DECAY_S,
+        sensors="oracle",
     )
     settle = decay_settling_time(solution.ts, solution["body_position"])
     return (
@@ -124,7 +130,7 @@ def decay_summary(rig, controller):
 
 @eqx.filter_jit
 def cam_summary(rig, controller, cam, rest):
-    solution = jaxmr.simulate_system(rig, cam, controller, CAM_S)
+    solution = jaxmr.simulate_system(rig, cam, controller, CAM_S, sensors="oracle")
     keep = solution.ts >= CAM_S - CAM_KEEP_S
     angle = solution["body_position"] - rest
     rms = jnp.sqrt(

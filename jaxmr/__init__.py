@@ -62,7 +62,10 @@ if TYPE_CHECKING:
         PolynomialLaw as PolynomialLaw,
         TableLaw as TableLaw,
     )
-    from ._damper import Damper as Damper
+    from ._damper import (
+        Damper as Damper,
+        with_fitted_range as with_fitted_range,
+    )
     from ._export import (
         export_c as export_c,
         export_stablehlo as export_stablehlo,

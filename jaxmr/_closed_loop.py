@@ -6,12 +6,14 @@ import warnings
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from ._control.base import AbstractController, ConstantCurrent, DamperPlant
 from ._control.observer_based import ObserverBasedController, _NoPlant
 from ._control.sampling import Sampling
 from ._control.sensors import Sensors, readings
 from ._custom_types import Array, Float, PyTree, Scalar
+from ._damper import with_fitted_range
 from ._fitted_range import FittedRange, check_fitted_range
 from ._integrate import FixedStep
 from ._metrics import dissipated_energy
@@ -156,30 +158,35 @@ def _check_arguments(system, excitation, duration, sampling: Sampling):
     return as_signal(excitation, "excitation")
 
 
-def _check_sensors(sensors, key) -> Sensors | None:
-    """`sensors` checked against `key`: a `Sensors` set, or None for the oracle."""
-    if isinstance(sensors, str) and sensors == "oracle":
+# `sensors="oracle"`: perfect information, the simulated device included.
+ORACLE = "oracle"
+
+
+def check_sensors(
+    sensors, key, who: str = "simulate_system", key_name: str = "key"
+) -> Sensors | str | None:
+    """`sensors` checked against its noise `key` (named `key_name` in `who`'s
+    errors): a `Sensors` set, `None` (perfect readings, no device) or `ORACLE`
+    (perfect readings and the device): what `simulate_system` and every tuner
+    accept."""
+    if sensors is None or (isinstance(sensors, str) and sensors == ORACLE):
         if key is not None:
             raise ValueError(
-                "simulate_system: `key` draws the sensors' noise; give it with "
+                f"{who}: `{key_name}` draws the sensors' noise; give it with "
                 "`sensors=` (e.g. jaxmr.realistic_sensors(system)), not with the "
-                "oracle's perfect information."
+                f"perfect readings of `sensors={sensors!r}`."
             )
-        return None
+        return sensors
     if not isinstance(sensors, Sensors):
         raise TypeError(
-            "simulate_system: `sensors` must be a jaxmr.Sensors set (e.g. "
-            'jaxmr.realistic_sensors(system)) or "oracle" (perfect information), got '
-            f"{sensors!r}."
-        )
-    if key is None:
-        raise TypeError(
-            "simulate_system: `sensors` need `key=jax.random.key(...)` for their noise."
+            f"{who}: `sensors` must be a jaxmr.Sensors set (e.g. "
+            "jaxmr.realistic_sensors(system)), None (perfect readings, the default) "
+            f'or "oracle" (perfect information, the device included), got {sensors!r}.'
         )
     if not isinstance(key, jax.Array):
         raise TypeError(
-            "simulate_system: `key` must be a jax.random.key(...), got "
-            f"{type(key).__name__}."
+            f"{who}: `sensors` need `{key_name}=jax.random.key(...)` for their noise, "
+            f"got {type(key).__name__}."
         )
     return sensors
 
@@ -232,7 +239,7 @@ def simulate_system(
     throw: bool = True,
     unroll: int = 1,
     fitted_range: FittedRange | None = None,
-    sensors: Sensors | str = "oracle",
+    sensors: Sensors | str | None = None,
     key: jax.Array | None = None,
     **deprecated,
 ) -> SystemSolution:
@@ -278,21 +285,36 @@ def simulate_system(
       nothing and can lose much: the Bouc–Wen benchmark oscillator's residual (20
       substeps, a long sampled excitation) ran 10x slower with 8, its forward-mode
       Jacobian 2.6x, and compiling took 3-6x longer.
-    - `fitted_range`: the range the damper's model was fitted on (`jaxmr.FittedRange`,
-      e.g. `jaxmr.load_fitted_range("params.json")`); when the damper's displacement,
-      velocity or current leave it, warn once (`OutsideFittedRange`) naming each
-      interval exceeded and by how much, before raising if the run failed (a damper
-      driven far beyond its data is a common cause). Skipped when traced (under jit,
-      vmap or grad).
-    - `sensors`: what the controller reads. `"oracle"` (default): perfect
-      information, every true measurement by name and the simulated device itself,
-      at its true state, for the inverse models (`DamperPlant`), which no real
-      controller has. A `Sensors` set (e.g. `realistic_sensors(system)`): the
-      controller reads only those sensors' readings (noise, bias, bandwidth,
-      quantisation, sample-and-hold) and the time; a law then runs inside an
-      `ObserverBasedController`, which estimates the velocities and observes the
-      damper's state (a bare law that inverts the damper, or reads a quantity no
-      sensor gives, raises saying so). The readings are in `measured`.
+    - `fitted_range`: the range the damper's model was fitted on (`jaxmr.FittedRange`);
+      default: the damper's own (`system.damper.fitted_range`, which `load_model`
+      sets from the file: `passenger_car(jaxmr.load_model("params.json"))` is
+      checked with no argument). When the damper's displacement, velocity or
+      current leave it, warn once (`OutsideFittedRange`) naming each interval
+      exceeded and by how much, before raising if the run failed (a damper driven
+      far beyond its data is a common cause). Skipped when traced (under jit, vmap
+      or grad).
+    - `sensors`: what the controller reads (an `ObserverBasedController` is handed
+      the device in every case and decides itself what its law inverts: its
+      observer's damper, or with `oracle=True` the device):
+        - `None` (default): perfect readings of every measurement the system
+          gives, by name, and the time; but no device: a bare law that inverts the
+          damper (`DamperPlant`: `Skyhook`, `Groundhook`, `Hybrid`,
+          `ContinuousClippedOptimal`, `PowerDrivenDamper`, `Backstepping`,
+          `ForceFeedback`) raises, saying to run it inside
+          `ObserverBasedController(law, estimator=...,
+          observer=DamperObserver(nominal_model))`, which inverts its own nominal
+          model at its observed state, as a real controller must. Laws that invert
+          nothing (`ConstantCurrent`, `OnOffSkyhook`, ...) run as with `"oracle"`,
+          to the bit.
+        - `"oracle"`: perfect information, for research comparisons only: the
+          readings above and the simulated device itself, at its true hysteretic
+          state, for a bare law's inverse model, which no real controller has.
+        - A `Sensors` set (e.g. `realistic_sensors(system)`): the controller reads
+          only those sensors' readings (noise, bias, bandwidth, quantisation,
+          sample-and-hold) and the time; a law then runs inside an
+          `ObserverBasedController`, which estimates the velocities and observes the
+          damper's state (a bare law that inverts the damper, or reads a quantity no
+          sensor gives, raises saying so). The readings are in `measured`.
     - `key`: the `jax.random` key of the sensors' noise, required with `sensors`
       (the run's noise is `sensors.noise(key, samples)`, row $k$ for sample $k$;
       gradients flow through the sampled noise).
@@ -327,12 +349,17 @@ def simulate_system(
             f"observer at {own}, but the loop samples at {sampling}: give the "
             "controller the loop's `sampling` (or leave `sampling` out here)."
         )
-    sensor_set = _check_sensors(sensors, key)
+    sensor_set = check_sensors(sensors, key)
     excitation = _check_arguments(system, excitation, duration, sampling)
     _excitation_checks(excitation, sampling.dt, duration)
     if not isinstance(unroll, int) or not 1 <= unroll:
         raise ValueError(f"`unroll` must be a positive integer, got {unroll!r}.")
     fitted_range = check_fitted_range(fitted_range)
+    if fitted_range is None:
+        fitted_range = system.damper.hysteresis.fitted_range
+    # Read here, outside the jit: off the system, a loaded damper shares the
+    # compilation of the same damper built in code.
+    system = with_fitted_range(system, None)
     traced = not is_concrete(
         eqx.filter(
             (system, excitation, controller, initial_state, sensor_set, key),
@@ -390,50 +417,150 @@ _STEP_STIFFNESS = 2.0
 _MOST_SUBSTEPS = 1024
 
 
-def _with_chosen_steps(run, system, excitation, sampling, integrator, solution):
-    """The run again with more substeps while it failed (16 times as many) or its
-    damper's stiffness `_damper_stiffness` asks for more (h·λ <= 2, rounded up to a
-    power of two), as `fit`'s `StepPolicy` chooses its steps from the motion: a
-    run that is stable at the default is returned as it is."""
+def choose_substeps(run, failed, stiffness, dt: float, integrator, result):
+    """`run(integrator)` again with more substeps while `failed(result)` (16 times
+    as many: a diverged run's stiffness is read from nonsense states) or the
+    damper's stiffness `stiffness(result)` [1/s] asks for more (h·λ <= 2, rounded
+    up to a power of two), as `fit`'s `StepPolicy` chooses its steps from the
+    motion; `result` is the run at `integrator`. A run that is stable at it is
+    returned as it is. **Returns:** `(result, integrator)`, the last run's."""
     substeps = integrator.substeps
     for _ in range(6):
-        if solution.result == RESULTS.nonfinite:
-            # A diverged run's stiffness is read from nonsense states: step down far
-            # (each new count costs a compilation, of seconds).
-            needed = 16 * substeps
+        if failed(result):
+            needed = 16 * substeps  # each new count costs a compilation, of seconds
         else:
-            stiffness = float(_damper_stiffness(system, excitation, solution))
-            needed = sampling.dt * stiffness / _STEP_STIFFNESS
+            needed = dt * stiffness(result) / _STEP_STIFFNESS
             needed = 2 ** math.ceil(math.log2(needed)) if needed > 1 else 1
         if needed <= substeps or substeps >= _MOST_SUBSTEPS:
             break
         substeps = min(needed, _MOST_SUBSTEPS)
         integrator = FixedStep(substeps=substeps)
-        solution = run(integrator, False)
-    return solution, integrator
+        result = run(integrator)
+    return result, integrator
+
+
+def _with_chosen_steps(run, system, excitation, sampling, integrator, solution):
+    """`simulate_system`'s run (`run(integrator, throw)`, `solution` at
+    `integrator`) at the substeps `choose_substeps` chooses from its damper's
+    stiffness (`_damper_stiffness`)."""
+    return choose_substeps(
+        lambda integrator: run(integrator, False),
+        lambda solution: bool(solution.result == RESULTS.nonfinite),
+        lambda solution: float(_damper_stiffness(system, excitation, solution)),
+        sampling.dt,
+        integrator,
+        solution,
+    )
+
+
+def steps_for_runs(who: str, runs, duration: float, sampling: Sampling) -> FixedStep:
+    """The RK4 substeps per sample that `simulate_system` with no `integrator`
+    chooses, for the stiffest of several runs: what a batch that runs under `vmap`
+    (and so cannot choose per run) takes. Each run is `(name, system, excitation,
+    controller, sensors, key)` (`name` for the error, e.g. "road 2"; `sensors` as
+    `check_sensors` returns it), simulated concretely, one at a time, from `FixedStep()`
+    on. Where the runs' damper holds its fitted range, one `OutsideFittedRange`
+    warning (from `who`) covers every run that leaves it. `ValueError`, with what to
+    change, when a run still diverges at the most substeps (`_MOST_SUBSTEPS`)."""
+    runs = list(runs)
+    for _, system, excitation, *_ in runs:
+        excitation = _check_arguments(system, excitation, duration, sampling)
+        _excitation_checks(excitation, sampling.dt, duration)
+    fitted_range = runs[0][1].damper.hysteresis.fitted_range if runs else None
+    # Off the systems, as in `simulate_system`: one compilation with or without.
+    runs = [(n, with_fitted_range(system, None), *rest) for n, system, *rest in runs]
+
+    def run(integrator):
+        return [
+            _simulate_system(
+                system,
+                excitation,
+                _as_controller(controller),
+                duration,
+                sampling,
+                integrator,
+                initial_state=None,
+                throw=False,
+                sensors=sensors,
+                key=key,
+            )
+            for _, system, excitation, controller, sensors, key in runs
+        ]
+
+    def diverged(solutions):
+        return [
+            k
+            for k, solution in enumerate(solutions)
+            if bool(solution.result == RESULTS.nonfinite)
+        ]
+
+    def stiffness(solutions):
+        return max(
+            float(_damper_stiffness(system, excitation, solution))
+            for (_, system, excitation, *_), solution in zip(runs, solutions)
+        )
+
+    first = FixedStep()
+    solutions, integrator = choose_substeps(
+        run,
+        lambda solutions: bool(diverged(solutions)),
+        stiffness,
+        sampling.dt,
+        first,
+        run(first),
+    )
+    if fitted_range is not None:
+        outputs = [solution.outputs for solution in solutions]
+        fitted_range.warn(
+            who,
+            np.concatenate([np.ravel(o["damper_displacement"]) for o in outputs]),
+            np.concatenate([np.ravel(o["damper_velocity"]) for o in outputs]),
+            np.concatenate([np.ravel(solution.current) for solution in solutions]),
+            stacklevel=5,  # the caller of the tuner: tuner, `choose_integrator`, here
+        )
+    failed = diverged(solutions)
+    if failed:
+        raise ValueError(
+            f"{who}: the starting parameters' run on {runs[failed[0]][0]} diverged "
+            "(inf or nan) "
+            f"even at the {integrator.substeps} RK4 substeps per {sampling.dt:g} s "
+            f"sample chosen from the damper's stiffness (at most {_MOST_SUBSTEPS}): a "
+            f"shorter `sampling=jaxmr.Sampling(dt={sampling.dt / 4:g})` may help. A "
+            "fitted damper driven far beyond the range it was fitted on is a common "
+            "cause: `jaxmr.simulate_system` of that run warns where the damper holds "
+            "its range (`jaxmr.load_model` gives it)."
+        )
+    return integrator
+
+
+def step_advice(sampling, integrator, chosen: bool, who="simulate_system") -> str:
+    """What to change when a closed-loop run at `integrator` went non-finite
+    (`chosen`: the substeps `who` chose from the damper's stiffness)."""
+    substeps = integrator.substeps
+    if chosen:
+        return (
+            f"the damper diverged even at the {substeps} RK4 substeps per sample that "
+            f"{who} chose (at most {_MOST_SUBSTEPS}); a shorter "
+            f"`sampling=jaxmr.Sampling(dt={sampling.dt / 4:g})` may help"
+        )
+    return (
+        f"the {substeps} RK4 substeps per {sampling.dt:g} s sample are too long "
+        "for the damper's stiffness at this motion: pass "
+        f"`integrator=jaxmr.FixedStep(substeps={4 * substeps})` or more, or no "
+        f"`integrator` ({who} then chooses the substeps from the damper's "
+        "stiffness)"
+    )
 
 
 def _diverged_advice(sampling, integrator, chosen, fitted_range) -> str:
     """The error of a closed-loop solve that went non-finite: what to change."""
-    substeps = integrator.substeps
-    if chosen:
-        step = (
-            f"the damper diverged even at the {substeps} RK4 substeps per sample that "
-            f"simulate_system chose (at most {_MOST_SUBSTEPS}); a shorter "
-            f"`sampling=jaxmr.Sampling(dt={sampling.dt / 4:g})` may help"
-        )
-    else:
-        step = (
-            f"the {substeps} RK4 substeps per {sampling.dt:g} s sample are too long "
-            "for the damper's stiffness at this motion: pass "
-            f"`integrator=jaxmr.FixedStep(substeps={4 * substeps})` or more, or no "
-            "`integrator` (simulate_system then chooses the substeps from the "
-            "damper's stiffness)"
-        )
+    step = step_advice(sampling, integrator, chosen)
     if fitted_range is None:
         where = (
             "A fitted model driven beyond the range it was fitted on is a common "
-            "cause: pass `fitted_range=jaxmr.load_fitted_range(params)` to check"
+            "cause; this damper holds no fitted range to check: read it with "
+            "`jaxmr.load_model` from the file `jaxmr fit` wrote, or pass "
+            "`fitted_range=jaxmr.load_fitted_range(params)`"
         )
     else:
         where = (
@@ -478,7 +605,7 @@ def _simulate_system(
     initial_state,
     throw,
     unroll=1,
-    sensors: Sensors | None = None,
+    sensors: Sensors | str | None = None,
     key=None,
 ) -> SystemSolution:
     dt, delay, substeps = sampling.dt, sampling.delay, integrator.substeps
@@ -519,13 +646,16 @@ def _simulate_system(
             [system.rates(q, t, excitation, force), damper.rates(s, x, v, applied)]
         )
 
-    # What the controller reads: the truth (perfect information, the oracle's), or
-    # the sensors' readings at sample k, with a damper it may not read unless it
-    # observes one (or asks for the oracle) itself.
+    # What the controller reads: the truth (perfect readings), or the sensors'
+    # readings at sample k; and the device only with the oracle's perfect
+    # information, or for an `ObserverBasedController`, which decides itself what its
+    # law may invert (its observer's damper, or the device on `oracle=True`).
     blind = not isinstance(controller, ObserverBasedController)
 
     def read(truth, plant, sensor_state, k, eps):
-        if sensors is None:
+        if not isinstance(sensors, Sensors):
+            if blind and sensors is None:
+                plant = _NoPlant(why=_NO_DEVICE)
             return truth, plant, sensor_state
         values, sensor_state = sensors.step(sensor_state, truth, eps, k, dt)
         values["time"] = truth["time"]
@@ -537,7 +667,7 @@ def _simulate_system(
     x0, v0 = system.damper_motion(q0, t0, excitation)
     s_probe = damper.initial_state(x0, v0, jnp.zeros_like(t0))
     truth0, plant0 = observe(jnp.concatenate([q0, s_probe]), t0, jnp.zeros_like(t0))
-    if sensors is None or key is None:
+    if not isinstance(sensors, Sensors) or key is None:
         sensor0 = ()
         noise = jnp.zeros((samples, 0), t0.dtype)  # nothing to draw
     else:
@@ -578,7 +708,9 @@ def _simulate_system(
             applied,
             damper.effective_current(s, applied),
             y,
-            None if sensors is None else {n: seen[n] for n in sensors.names},
+            {n: seen[n] for n in sensors.names}
+            if isinstance(sensors, Sensors)
+            else None,
             c_state,
         )
         return (y_next, c_state, pending, applied, sensor_state), record
@@ -624,6 +756,17 @@ _BLIND = (
     "observer=jaxmr.DamperObserver(nominal_damper)), which observes that state with "
     "its own model (or, for research comparisons only, oracle=True)."
 )
+_NO_DEVICE = (
+    "This law inverts the damper at its hysteretic state, which no sensor gives, "
+    "and simulate_system's default `sensors=None` hands a controller perfect "
+    "readings but not the simulated device. Run the law as a real controller would, "
+    "inside jaxmr.ObserverBasedController(law, observer=jaxmr.DamperObserver("
+    "nominal_damper)), which inverts its own nominal model at its observed state "
+    "(add `estimator=jaxmr.VelocityEstimator()` where the sensors give no "
+    'velocities); or pass `sensors="oracle"` (simulate_system, '
+    "tune, cma_es, random_search, evaluate) for research comparisons with perfect "
+    "information, the device's true state included."
+)
 
 
 def dissipated_work(solution: SystemSolution) -> Scalar:
@@ -652,6 +795,8 @@ def free_decay(
     duration: float = 15.0,
     sampling: Sampling | None = None,
     integrator: FixedStep | None = None,
+    sensors: Sensors | str | None = None,
+    key: jax.Array | None = None,
     **deprecated,
 ):
     r"""The source's identification experiment: the body held `release_angle_deg`
@@ -670,10 +815,15 @@ def free_decay(
     - `release_angle_deg`: the release angle above rest [°] (default 16, the source's).
     - `duration`: simulated time [s] (default 15).
     - `sampling`, `integrator`: as in `simulate_system` (`dt`, `substeps`, `delay`
-      deprecated as there).
+      deprecated as there); with no `integrator` the substeps are chosen from the
+      brake's stiffness, as there.
+    - `sensors`, `key`: what the controller reads, as in `simulate_system` (default
+      `None`: perfect readings, no device; `"oracle"` for a bare law that inverts
+      the brake, such as `Backstepping`, with perfect information).
 
     **Returns:** a `SystemSolution`; see `decay_settling_time`.
     """
+    chosen = integrator is None and "substeps" not in deprecated
     sampling, integrator = loop_settings("free_decay", sampling, integrator, deprecated)
     if not isinstance(rig, SASRig):
         raise TypeError(f"`rig` must be a SASRig, got {type(rig).__name__}.")
@@ -685,6 +835,8 @@ def free_decay(
         controller,
         duration,
         sampling=sampling,
-        integrator=integrator,
+        integrator=None if chosen else integrator,  # None: `simulate_system` chooses
         initial_state=q0,
+        sensors=sensors,
+        key=key,
     )

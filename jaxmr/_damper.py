@@ -1,11 +1,15 @@
 """A damper: a hysteresis law, its current laws, and the current dynamics in front of it."""
 
+import copy
+
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 
 from ._current_dynamics import AbstractCurrentDynamics
 from ._current_law import law_ranges
 from ._custom_types import Scalar, State
+from ._fitted_range import FittedRange
 from ._hysteresis import AbstractHysteresis
 
 
@@ -43,6 +47,12 @@ class Damper(eqx.Module):
     def state_names(self) -> tuple[str, ...]:
         extra = () if self.dynamics is None else self.dynamics.state_names
         return self.hysteresis.state_names + extra
+
+    @property
+    def fitted_range(self) -> FittedRange | None:
+        """The range its hysteresis model was fitted on (`AbstractHysteresis`'s
+        `fitted_range`; None: not known)."""
+        return self.hysteresis.fitted_range
 
     @property
     def _split(self) -> int:
@@ -105,3 +115,68 @@ def as_damper(device) -> Damper:
         "expected a jaxmr Damper or hysteresis model (e.g. BoucWen(...)), got "
         f"{type(device).__name__}."
     )
+
+
+def _is_hysteresis(node) -> bool:
+    return isinstance(node, AbstractHysteresis)
+
+
+def with_fitted_range(tree, fitted_range: FittedRange | None):
+    """`tree` with every hysteresis model in it given `fitted_range` (None: none
+    known), e.g. a model built in code, or fitted by `jaxmr.fit`, that is to warn
+    beyond its data: `with_fitted_range(result.model,
+    FittedRange.from_experiments(experiments))`.
+
+    **Arguments:**
+
+    - `tree`: a hysteresis model, a `Damper`, a `ChannelDelay`, a system holding a
+      damper (`passenger_car(...)`), or any pytree of them.
+    - `fitted_range`: a `jaxmr.FittedRange` (displacement [m], velocity [m/s],
+      input [A or V]) or None.
+
+    **Returns:** the same tree, the models' parameters untouched (the range is a
+    static field: no array changes, and a tree already holding that range is
+    returned as it is).
+    """
+    if fitted_range is not None and not isinstance(fitted_range, FittedRange):
+        raise TypeError(
+            "`fitted_range` must be a jaxmr.FittedRange (e.g. "
+            "jaxmr.FittedRange.from_experiments(experiments)) or None, got "
+            f"{type(fitted_range).__name__}."
+        )
+    models = [
+        m for m in jax.tree.leaves(tree, is_leaf=_is_hysteresis) if _is_hysteresis(m)
+    ]
+    if all(m.fitted_range == fitted_range for m in models):
+        return tree
+
+    def set_range(node):
+        if not _is_hysteresis(node) or node.fitted_range == fitted_range:
+            return node
+        # A static field is out of `eqx.tree_at`'s reach, and rebuilding the model
+        # through its constructor would convert and check its parameters again (a
+        # constraint wrapper's stored variable is not what the constructor takes):
+        # a shallow copy with the one field set keeps every parameter as it is.
+        new = copy.copy(node)
+        object.__setattr__(new, "fitted_range", fitted_range)
+        return new
+
+    return jax.tree.map(set_range, tree, is_leaf=_is_hysteresis)
+
+
+def fitted_range_in(tree, strict: bool = True) -> FittedRange | None:
+    """The `fitted_range` the hysteresis models in `tree` hold (None when none
+    does); when they hold different ones, `ValueError` (`strict`) or None."""
+    ranges = {
+        m.fitted_range
+        for m in jax.tree.leaves(tree, is_leaf=_is_hysteresis)
+        if _is_hysteresis(m) and m.fitted_range is not None
+    }
+    if len(ranges) > 1:
+        if not strict:
+            return None
+        raise ValueError(
+            "the models in this tree hold different fitted ranges; give one "
+            "(`fitted_range=`)."
+        )
+    return ranges.pop() if ranges else None

@@ -1,11 +1,14 @@
 """`FittedRange`: the displacements, velocities and inputs a model was fitted on, and
 the warning `simulate`, `sweep` and `simulate_system` give beyond them.
 
-A record beside the model, not a field of it: a field would change every model's
-pytree (its structure under `fit`, `vmap`, `sweep`'s stacking and jit's cache), and a
-model refitted or edited by `eqx.tree_at` would carry a range that no longer holds.
-`save_model(..., fitted_range=)` writes it, `load_fitted_range` reads it back, and the
-simulations check it when they are given it.
+A model carries it as a static field (`AbstractHysteresis.fitted_range`, None by
+default): not an array, so it is never fitted, differentiated or batched, and a model
+without one keeps the pytree and the results it always had. `load_model` gives a model
+the range saved with it (`save_model` writes the model's own, or the one given), so
+`simulate_system(passenger_car(load_model(path)), ...)` warns with no extra argument;
+the simulations' `fitted_range=` checks a model against another range. `jaxmr.fit`
+does not set it (a refit's data are not the start's): give the fitted model its
+range with `with_fitted_range(result.model, FittedRange.from_experiments(...))`.
 """
 
 import dataclasses
@@ -43,7 +46,8 @@ class FittedRange:
     - `drive`: `"current"` or `"voltage"`.
 
     Build it with `FittedRange.from_experiments(experiments)`; `jaxmr fit` saves it
-    with the model (`save_model(..., fitted_range=)`, read by `load_fitted_range`).
+    with the model (`save_model(..., fitted_range=)`), and `load_model` gives it
+    back to the model (its `fitted_range`; `load_fitted_range` reads it alone).
     """
 
     displacement: tuple[float, float]
@@ -127,10 +131,17 @@ class FittedRange:
         missing = [k for k in ("displacement", "velocity", "input") if k not in data]
         if missing:
             raise ValueError(f"fitted_range: missing {', '.join(missing)}.")
+        intervals = {}
+        for name in ("displacement", "velocity", "input"):
+            value = data[name]
+            if not isinstance(value, (list, tuple)):
+                raise ValueError(
+                    f"fitted_range: `{name}` must be an interval [low, high], got "
+                    f"{value!r}."
+                )
+            intervals[name] = tuple(value)
         return cls(
-            displacement=tuple(data["displacement"]),
-            velocity=tuple(data["velocity"]),
-            input=tuple(data["input"]),
+            **intervals,
             rotary=bool(data.get("rotary", False)),
             drive=str(data.get("drive", "current")),
         )

@@ -24,6 +24,7 @@ specification, MODELS.md §6).
 import difflib
 import math
 from collections.abc import Mapping, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -322,7 +323,9 @@ def from_opensees(
         )
     p = _parameters(material, params)
     hysteretic = (1 - p["alpha"]) * p["ko"]
-    common = dict(A0=p["Ao"], beta=p["gamma"], gamma=p["beta"], n=p["n"], c=0.0, f0=0.0)
+    common: dict[str, Any] = dict(
+        A0=p["Ao"], beta=p["gamma"], gamma=p["beta"], n=p["n"], c=0.0, f0=0.0
+    )
     try:
         if material == "BWBN":
             return BoucWenBaberNoori(

@@ -3,8 +3,11 @@
     {"jaxmr": "0.1.0", "model": {"type": "BoucWen", "fields": {"alpha": {"type":
     "LinearLaw", "fields": {"a": 1.0, "b": 0.07}}, "A": 843.0, ...}}}
 
-Every jaxmr model, law, dynamics, constraint wrapper and `Damper` can be written; a
-user's own class can be read back when it is passed in `classes`.
+Every jaxmr model, law, dynamics, constraint wrapper and `Damper` can be written, and
+so can a machine, a controller (an `ObserverBasedController` with its estimator,
+observer and `Sampling`; not a `ForceFeedback`, whose network is an equinox layer) and
+a `Sensors` set, whose mapping is written `{"dict": {name: ...}}`; a user's own class
+can be read back when it is passed in `classes`.
 """
 
 import dataclasses
@@ -31,7 +34,9 @@ from . import (
     _signal,
     _systems,
 )
+from ._damper import fitted_range_in, with_fitted_range
 from ._fitted_range import FittedRange
+from ._hysteresis import AbstractHysteresis
 from ._misc import default_float
 from ._version import __version__
 
@@ -67,14 +72,28 @@ def _registry() -> dict[str, type]:
     }
 
 
+def _stored(cls, field) -> bool:
+    """Whether a model file holds `field` of `cls`: not a private field, nor a
+    hysteresis model's `fitted_range` (the file's own `fitted_range` entry)."""
+    if field.name.startswith("_"):
+        return False
+    return not (issubclass(cls, AbstractHysteresis) and field.name == "fitted_range")
+
+
 def _encode(value):
     if isinstance(value, eqx.Module):
         fields = {}
         for field in dataclasses.fields(value):
-            if field.name.startswith("_"):
+            if not _stored(type(value), field):
                 continue
             fields[field.name] = _encode(getattr(value, field.name))
         return {"type": type(value).__name__, "fields": fields}
+    if isinstance(value, dict):
+        # Models by name (a `Sensors` set), marked so that the mapping is never read
+        # as a model, nor a mistyped model as a mapping.
+        if not all(isinstance(k, str) for k in value):
+            raise TypeError("cannot write a dict whose keys are not strings to JSON.")
+        return {"dict": {k: _encode(v) for k, v in value.items()}}
     if value is None or isinstance(value, (bool, int, float, str)):
         return value
     array = np.asarray(value)
@@ -83,7 +102,10 @@ def _encode(value):
     raise TypeError(f"cannot write a value of type {type(value).__name__} to JSON.")
 
 
-def _decode(value, classes, where="model"):
+def _decode(value, classes, where="model", static=False):
+    """The value `_encode` wrote. `static`: the value of a static field, which keeps
+    JSON's Python numbers (a `Sampling`'s `dt` sets the compiled loop's step, and an
+    array there is refused) and makes its lists tuples (hashable)."""
     if isinstance(value, dict) and "type" in value and "fields" in value:
         name = value["type"]
         if not isinstance(name, str) or name not in classes:
@@ -94,10 +116,25 @@ def _decode(value, classes, where="model"):
         cls = classes[name]
         if not isinstance(value["fields"], dict):
             raise ValueError(f"{where}: the fields of {name} must be a JSON object.")
+        statics = {
+            f.name for f in dataclasses.fields(cls) if f.metadata.get("static", False)
+        }
         fields = {
-            k: _decode(v, classes, f"{where}.{k}") for k, v in value["fields"].items()
+            k: _decode(v, classes, f"{where}.{k}", k in statics)
+            for k, v in value["fields"].items()
         }
         return _construct(cls, fields, where)
+    if isinstance(value, dict) and set(value) == {"dict"}:
+        if not isinstance(value["dict"], dict):
+            raise ValueError(f"{where}: a mapping's 'dict' must be a JSON object.")
+        return {
+            k: _decode(v, classes, f"{where}.{k}", static)
+            for k, v in value["dict"].items()
+        }
+    if static and isinstance(value, list):
+        return tuple(_decode(v, classes, where, static) for v in value)
+    if static and not isinstance(value, dict):
+        return value
     if isinstance(value, list):
         try:
             return jnp.asarray(value, dtype=default_float())
@@ -108,10 +145,11 @@ def _decode(value, classes, where="model"):
             ) from None
     if isinstance(value, float):
         return jnp.asarray(value, dtype=default_float())
-    if isinstance(value, dict):  # `_encode` writes dicts only for models
+    if isinstance(value, dict):  # `_encode` writes dicts only for models and mappings
         raise ValueError(
-            f"{where}: expected a number or a model (an object with 'type' and "
-            f"'fields'), got {json.dumps(value)[:80]}."
+            f"{where}: expected a number, a model (an object with 'type' and "
+            f"'fields') or a mapping (an object with 'dict' alone), got "
+            f"{json.dumps(value)[:80]}."
         )
     return value
 
@@ -119,9 +157,7 @@ def _decode(value, classes, where="model"):
 def _construct(cls, fields, where):
     """`cls` from its stored fields, with the checks construction makes: every field
     named and known, numbers where the model holds arrays, and `__check_init__`."""
-    declared = {
-        f.name: f for f in dataclasses.fields(cls) if not f.name.startswith("_")
-    }
+    declared = {f.name: f for f in dataclasses.fields(cls) if _stored(cls, f)}
     unknown = [k for k in fields if k not in declared]
     if unknown:
         hints = []
@@ -202,17 +238,21 @@ def save_model(
 
     `fitted_range`: the displacements [m], velocities [m/s] and inputs [A or V] the
     model was fitted on (`FittedRange.from_experiments`), written as the file's
-    `fitted_range` entry; `load_fitted_range` reads it back, and `simulate`, `sweep`
-    and `simulate_system` given it warn beyond it.
+    `fitted_range` entry; default: the range the model holds (its hysteresis
+    model's `fitted_range`, as `load_model` sets it), if any. `load_model` gives it
+    back to the model (and `load_fitted_range` reads it alone), and `simulate`,
+    `sweep` and `simulate_system` warn beyond it.
     """
+    if fitted_range is not None and not isinstance(fitted_range, FittedRange):
+        raise TypeError(
+            "`fitted_range` must be a jaxmr.FittedRange, got "
+            f"{type(fitted_range).__name__}."
+        )
+    if fitted_range is None:
+        fitted_range = fitted_range_in(model)
     data = model_to_dict(model)
     data.update(extra)
     if fitted_range is not None:
-        if not isinstance(fitted_range, FittedRange):
-            raise TypeError(
-                "`fitted_range` must be a jaxmr.FittedRange, got "
-                f"{type(fitted_range).__name__}."
-            )
         data["fitted_range"] = fitted_range.to_dict()
     Path(path).write_text(json.dumps(data, indent=2))
 
@@ -232,18 +272,21 @@ def _read_json(path) -> dict:
     return data
 
 
-def load_fitted_range(path) -> FittedRange | None:
-    """The `FittedRange` saved with a model (`save_model(..., fitted_range=)`, as
-    `jaxmr fit` writes it), or None when the file has none. Pass it to `simulate`,
-    `sweep` or `simulate_system` (`fitted_range=`) to be warned
-    (`OutsideFittedRange`) when they drive the model beyond it."""
-    data = _read_json(path)
+def _fitted_range(data: dict, path) -> FittedRange | None:
     if data.get("fitted_range") is None:
         return None
     try:
         return FittedRange.from_dict(data["fitted_range"])
     except ValueError as e:
         raise ValueError(f"{path}: {e}") from e
+
+
+def load_fitted_range(path) -> FittedRange | None:
+    """The `FittedRange` saved with a model (`save_model`, as `jaxmr fit` writes
+    it), or None when the file has none. `load_model` already gives it to the
+    model it reads (its `fitted_range`); pass it as `fitted_range=` to check a
+    model that does not carry it."""
+    return _fitted_range(_read_json(path), path)
 
 
 def load_model(path, classes: dict[str, type] | None = None) -> eqx.Module:
@@ -253,9 +296,16 @@ def load_model(path, classes: dict[str, type] | None = None) -> eqx.Module:
     a string or boolean where a number belongs, or a value the class refuses (an
     unsorted `TableLaw`) raises `ValueError` naming the file and the field (e.g.
     `model.hysteresis.alpha.currents`).
+
+    When the file holds a `fitted_range` (as `jaxmr fit` writes it), every hysteresis
+    model read gets it as its `fitted_range` (`with_fitted_range`): in a `Damper`
+    or a system too (`passenger_car(load_model(path))`), `simulate`, `sweep` and
+    `simulate_system` then warn (`OutsideFittedRange`) when they drive it beyond
+    the displacements, velocities and currents it was fitted on.
     """
     data = _read_json(path)
     try:
-        return model_from_dict(data, classes)
+        model = model_from_dict(data, classes)
     except ValueError as e:
         raise ValueError(f"{path}: {e}") from e
+    return with_fitted_range(model, _fitted_range(data, path))

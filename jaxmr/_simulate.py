@@ -13,7 +13,7 @@ from jax.sharding import PartitionSpec
 from ._channel import ChannelDelay
 from ._current_law import ranged_laws
 from ._custom_types import ArrayLike, Float, ScalarLike
-from ._damper import Damper, as_damper
+from ._damper import Damper, as_damper, fitted_range_in, with_fitted_range
 from ._distribute import batch_mesh, gather, pad, padded_size, spread
 from ._fitted_range import FittedRange, check_fitted_range
 from ._hysteresis import AbstractHysteresis
@@ -355,11 +355,12 @@ def simulate(
     - `throw`: raise if the solve fails (default); with `False` inspect
       `solution.result` instead (a current outside a `TableLaw`'s range is then the
       code `RESULTS.current_outside_table`; other invalid inputs still raise).
-    - `fitted_range`: the range the model was fitted on (`jaxmr.FittedRange`, e.g.
-      `jaxmr.load_fitted_range("params.json")`); when the motion's displacement or
-      velocity, or the current, at `ts` leaves it, warn once (`OutsideFittedRange`),
-      before the solve, naming each interval exceeded and by how much. Skipped when
-      the inputs are traced (under jit, vmap or grad).
+    - `fitted_range`: the range the model was fitted on (`jaxmr.FittedRange`);
+      default: the model's own (its `fitted_range`, which `load_model` sets from
+      the file), if it has one. When the motion's displacement or velocity, or the
+      current, at `ts` leaves it, warn once (`OutsideFittedRange`), before the
+      solve, naming each interval exceeded and by how much. Skipped when the inputs
+      are traced (under jit, vmap or grad).
 
     **Returns:** a `Solution` (force [N] or torque [N·m], states, inputs, result).
     """
@@ -381,6 +382,11 @@ def simulate(
                 f"{damper.state_names}, got {initial_state.shape}."
             )
     fitted_range = check_fitted_range(fitted_range)
+    if fitted_range is None:
+        fitted_range = damper.fitted_range
+    # The range is read here, outside the jit: off the model, a loaded model shares
+    # the compilation of the same model built in code.
+    damper = with_fitted_range(damper, None)
     if fitted_range is not None and is_concrete(motion, current, ts):
         # Before the solve: a run that fails far outside the range is told why first.
         fitted_range.warn(
@@ -651,6 +657,8 @@ def sweep(
       only the torque ran 2.3x faster (benchmarks/simulate_sweep.py).
     - `fitted_range`: as in `simulate`, checked after the runs over every run's
       displacement, velocity and current that `keep` kept: one warning for the sweep.
+      Default: the devices' own, when they hold one and the same (devices fitted
+      on different ranges are checked only against a range given here).
 
     **Returns:** a `Solution` whose arrays have the sweep's leading axes; with
     `throw=False` each run has its own `result` (a current outside a `TableLaw`'s range
@@ -682,6 +690,10 @@ def sweep(
         return m
 
     devices = _items(damper_in, as_damper, "device")
+    if fitted_range is None:
+        fitted_range = fitted_range_in(devices[0], strict=False)
+    # Off the models before they are stacked and jitted (as in `simulate`).
+    devices = ([with_fitted_range(d, None) for d in devices[0]], devices[1])
     currents = _items(current, as_signal, "current")
     batches = [
         _as_batch(*devices, "device"),

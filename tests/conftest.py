@@ -61,6 +61,7 @@ _SLOW_FIRST = (
     "05_",
     "01_",
     "03_",
+    "08_controller_to_c",
     "test_brake_parameters_identified_from_a_free_decay",
 )
 

@@ -926,8 +926,13 @@ def test_fit_saves_its_fitted_range(fitted, files, tmp_path):
     copy = tmp_path / "copy.json"
     jaxmr.save_model(jaxmr.load_model(params), copy, fitted_range=saved)
     assert jaxmr.load_fitted_range(copy) == saved
+    # The loaded model holds it (`load_model`), and `save_model` writes the model's
+    # own; a model without one writes none.
+    own = tmp_path / "own.json"
+    jaxmr.save_model(jaxmr.load_model(params), own)
+    assert jaxmr.load_fitted_range(own) == saved
     bare = tmp_path / "bare.json"
-    jaxmr.save_model(jaxmr.load_model(params), bare)
+    jaxmr.save_model(jaxmr.with_fitted_range(jaxmr.load_model(params), None), bare)
     assert jaxmr.load_fitted_range(bare) is None
 
 

@@ -7,6 +7,7 @@ MkDocs; it is the documentation build's own hook (docs/_hooks/api_coverage.py), 
 renders and that every link resolves."""
 
 import importlib.util
+import inspect
 import re
 from pathlib import Path
 
@@ -63,10 +64,12 @@ def _defaults() -> dict[str, list[str]]:
     assert linear_travel is not None and rotary_travel is None  # as worded below
     adaptive = jaxmr.Adaptive()
     sampling = jaxmr.Sampling()
+    sensors = inspect.signature(jaxmr.simulate_system).parameters["sensors"].default
     return {
         "control.md": [
             f"`Sampling()` samples every {_ms(sampling.dt)} "
-            f"({1e-3 / sampling.dt:g} kHz) with a delay of {sampling.delay} sample"
+            f"({1e-3 / sampling.dt:g} kHz) with a delay of {sampling.delay} sample",
+            f"By default (`sensors={sensors!r}`) perfect readings",
         ],
         "identification.md": [
             f"steps of at most {_ms(linear_step)} and {linear_travel * 1e6:g} µm of "

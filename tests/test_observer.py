@@ -3,6 +3,7 @@
 (`DamperObserver`), and the two with a law on realistic sensors in the closed loop
 (`ObserverBasedController`), differentiable."""
 
+import inspect
 import math
 
 import equinox as eqx
@@ -110,7 +111,7 @@ def road():
 @pytest.fixture(scope="module")
 def oracle(car, road):
     """Skyhook with perfect information: a motion and a command that both vary."""
-    return jaxmr.simulate_system(car, road, SKYHOOK, T)
+    return jaxmr.simulate_system(car, road, SKYHOOK, T, sensors="oracle")
 
 
 @eqx.filter_jit
@@ -268,3 +269,100 @@ def test_the_realistic_loop_is_differentiable_and_reads_as_its_sensors(car, road
     for name in sensors.names:
         np.testing.assert_array_equal(sol.measured[name], offline[name])
         assert not np.array_equal(sol.measured[name], other.measured[name])
+
+
+# -- what a controller reads by default: perfect readings, never the device -----------
+
+# Both ways on, as the error of a bare law that inverts the damper names them.
+_FIXES = r'ObserverBasedController\(law, observer=jaxmr\.DamperObserver\(.*`sensors="oracle"`'
+
+
+def test_a_bare_inverse_law_gets_no_device_at_the_default(car, road):
+    """`sensors=None`, the default everywhere, hands a bare law perfect readings but
+    not the simulated damper: a law that inverts it raises before it runs, saying to
+    wrap it in an `ObserverBasedController` with an observer or to ask for the
+    oracle."""
+    for name, fn in (
+        ("simulate_system", jaxmr.simulate_system),
+        ("free_decay", jaxmr.free_decay),
+        ("tune", jaxmr.tune),
+        ("cma_es", jaxmr.cma_es),
+        ("random_search", jaxmr.random_search),
+        ("evaluate", jaxmr.evaluate),
+    ):
+        assert inspect.signature(fn).parameters["sensors"].default is None, name
+    feedback = jaxmr.ForceFeedback.linear((0.1,), 1.0, features=("body_velocity",))
+    for law in (SKYHOOK, jaxmr.Groundhook(1000.0, 1.0), feedback):
+        with pytest.raises(TypeError, match=_FIXES):
+            jaxmr.simulate_system(car, road, law, T)
+    roads = jax.tree.map(lambda x: x[None], road)
+    with pytest.raises(TypeError, match=_FIXES):
+        jaxmr.evaluate(car, SKYHOOK, roads, T)
+    with pytest.raises(TypeError, match=_FIXES):
+        jaxmr.tune(car, SKYHOOK, roads, T, parameters=lambda p: p[1].c_sky, steps=1)
+    rig = jaxmr.sas_rig()
+    backstepping = jaxmr.Backstepping(3.0, 10.0, -1.0 / float(rig.J2), 1.5)
+    with pytest.raises(TypeError, match=_FIXES):
+        jaxmr.free_decay(rig, backstepping, duration=0.01)
+    with pytest.raises(
+        TypeError, match='None \\(perfect readings, the default\\) or "oracle"'
+    ):
+        jaxmr.simulate_system(car, road, 0.2, T, sensors="ideal")
+
+
+def test_the_oracle_hands_a_bare_law_the_device_at_its_true_state(car, road, oracle):
+    # The bare law's run with `sensors="oracle"` is the run it had by default before
+    # the default changed: the law handed the device explicitly (the controller's
+    # `oracle=True`, at the new default) runs the same, to the bit.
+    handed = jaxmr.ObserverBasedController(SKYHOOK, oracle=True)
+    through = jaxmr.simulate_system(car, road, handed, T)
+    for field in ("command", "states"):
+        np.testing.assert_array_equal(getattr(through, field), getattr(oracle, field))
+    # Each command is the law's at that sample's true measurements and the device's
+    # true state (recorded in `states`), recomputed offline: the same float64
+    # operations compiled apart (1e-12 A, the relaxed law being continuous).
+    nq = len(car.state_names)
+
+    def offline(states):
+        def one(measurement, s):
+            plant = jaxmr.DamperPlant(
+                car.damper,
+                s,
+                measurement["damper_displacement"],
+                measurement["damper_velocity"],
+            )
+            return SKYHOOK(measurement, (), plant)[0]
+
+        return jax.vmap(one)(oracle.outputs, states)
+
+    true_states = oracle.states[:, nq:]
+    np.testing.assert_allclose(offline(true_states), oracle.command, rtol=0, atol=1e-12)
+    # The state matters: at a virgin damper state the commands differ.
+    assert np.max(np.abs(offline(jnp.zeros_like(true_states)) - oracle.command)) > 0.1
+
+
+def test_an_observer_based_law_and_a_law_that_inverts_nothing_run_at_the_default(
+    car, road, oracle
+):
+    # An observer-based law inverts its observer's model: the oracle hands it nothing
+    # it reads, so the default and the oracle give the same run, to the bit.
+    observed = jaxmr.ObserverBasedController(
+        SKYHOOK, observer=jaxmr.DamperObserver(DAMPER)
+    )
+    default = jaxmr.simulate_system(car, road, observed, T)
+    explicit = jaxmr.simulate_system(car, road, observed, T, sensors="oracle")
+    assert default.result == jaxmr.RESULTS.successful and default.measured is None
+    for field in ("command", "states"):
+        np.testing.assert_array_equal(getattr(default, field), getattr(explicit, field))
+    # Its own model is the device's and perfect readings include the force, so it
+    # commands nearly what the oracle's law commands, but from its own state
+    # (measured: 1.1e-3 A apart at most, of a 0.34 A range; bound 1e-2).
+    gap = np.max(np.abs(np.asarray(default.command - oracle.command)))
+    assert 0.0 < gap < 1e-2, gap
+    # A law that inverts nothing reads the same measurements either way.
+    on_off = jaxmr.OnOffSkyhook(1.0)
+    default = jaxmr.simulate_system(car, road, on_off, T)
+    explicit = jaxmr.simulate_system(car, road, on_off, T, sensors="oracle")
+    assert np.ptp(np.asarray(default.command)) == 1.0  # it switches
+    for field in ("command", "states"):
+        np.testing.assert_array_equal(getattr(default, field), getattr(explicit, field))

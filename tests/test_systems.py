@@ -17,7 +17,7 @@ import jaxmr
 import jaxmr.data
 import jaxmr.metrics
 
-from .helpers import shared_data
+from .helpers import FITTED_SPENCER, shared_data
 
 NO_DAMPER = jaxmr.Bingham(f_c=0.0, c0=0.0)
 MR = jaxmr.Damper(jaxmr.review_quarter_car_damper(), jaxmr.FirstOrderLag(150.0))
@@ -234,7 +234,7 @@ def test_the_deprecated_loop_keywords_warn_and_give_the_same_run():
     # `integrator=FixedStep(substeps)`; for one release the old keywords still work,
     # with a warning naming the replacement, and run the very same simulation (equal
     # to the last bit: the same static settings reach the same compiled function).
-    args = (car(), jaxmr.Sine(0.01, 2.0), jaxmr.Skyhook(2000.0, 1.0), 0.1)
+    args = (car(), jaxmr.Sine(0.01, 2.0), jaxmr.OnOffSkyhook(1.0), 0.1)
     new = jaxmr.simulate_system(
         *args, sampling=jaxmr.Sampling(dt=5e-4, delay=2), integrator=jaxmr.FixedStep(2)
     )
@@ -262,24 +262,6 @@ def test_the_deprecated_loop_keywords_warn_and_give_the_same_run():
         old = jaxmr.free_decay(rig, 0.0, duration=0.02, dt=2e-3, delay=0)
     np.testing.assert_array_equal(old.states, new.states)
     assert new.ts.shape == (10,)
-
-
-# A Spencer model that `jaxmr.fit` found on three UTFSM files (2mm5Hz0A, 5mm3Hz0x25A,
-# 5mm3Hz1A; the "spencer" template, 30 steps, NRMSE 0.085-0.100), its values rounded
-# to 4-5 digits and kept here because the fit takes 30 s. Its state relaxes within
-# ~0.1 mm of travel (A = 1e4 1/m): stiff where the car drives it fast.
-FITTED_SPENCER = jaxmr.Spencer(
-    alpha=jaxmr.LinearLaw(168.4, 775.5),
-    c0=jaxmr.LinearLaw(0.02475, 6713.3),
-    k0=0.0,
-    c1=jaxmr.LinearLaw(7743.2, 118746.5),
-    k1=9.221,
-    x0=-0.2904,
-    gamma=8739.5,
-    beta=0.6274,
-    A=1e4,
-    n=3.1838,
-)
 
 
 def test_a_fitted_spencer_damper_runs_in_the_passenger_car_at_default_settings():

@@ -12,6 +12,7 @@ the trend's, well beyond the ripple a small change of gain causes (notebook 04):
 c_sky = 300 N·s/m, where the trend is flat, the gradient points the wrong way and
 four steps gain 0.2 %."""
 
+import functools
 import logging
 
 import equinox as eqx
@@ -22,6 +23,14 @@ import pytest
 
 import jaxmr
 import jaxmr.metrics
+
+# The laws tuned here (`Skyhook`, `ForceFeedback`, ...) invert the damper: these tests
+# tune and score them with perfect information, `sensors="oracle"` (research
+# comparisons; test_tune_sensors.py tunes through realistic sensors and an observer).
+tune = functools.partial(jaxmr.tune, sensors="oracle")
+random_search = functools.partial(jaxmr.random_search, sensors="oracle")
+cma_es = functools.partial(jaxmr.cma_es, sensors="oracle")
+evaluate = functools.partial(jaxmr.evaluate, sensors="oracle")
 
 T = 1.0
 CAR = jaxmr.passenger_car(jaxmr.passenger_car_mr_damper())
@@ -44,14 +53,14 @@ def c_sky(pair):
 
 
 def mean_comfort(controller, roads_=TRAIN):
-    return float(np.mean(jaxmr.evaluate(CAR, controller, roads_, T)["comfort"]))
+    return float(np.mean(evaluate(CAR, controller, roads_, T)["comfort"]))
 
 
 def test_tune_improves_the_loss_and_keeps_the_best():
     # Adam steps of 1.5 in log c_sky: the second lands near the optimum (1.4 kN·s/m)
     # and the third goes past it, so the best point is not the last.
     def run(steps):
-        return jaxmr.tune(
+        return tune(
             CAR,
             FAR,
             TRAIN,
@@ -99,12 +108,10 @@ def test_patience_counts_the_relaxed_loss_s_progress_too():
         mean_comfort(relaxed)
     )
     settings = dict(parameters=c_sky, steps=8, patience=3, progress=False)
-    hard = jaxmr.tune(
-        CAR, jaxmr.Skyhook(best, 1.0), TRAIN, T, learning_rate=1.0, **settings
-    )
+    hard = tune(CAR, jaxmr.Skyhook(best, 1.0), TRAIN, T, learning_rate=1.0, **settings)
     assert hard.reason == "stalled: no improvement in 3 steps", hard.reason
     assert len(hard.history) == 4 and hard.simulations == 4 * 2
-    soft = jaxmr.tune(
+    soft = tune(
         CAR,
         relaxed,
         TRAIN,
@@ -124,7 +131,7 @@ def test_patience_counts_the_relaxed_loss_s_progress_too():
 
 
 def test_random_search_spends_the_budget_and_returns_its_best():
-    search = jaxmr.random_search(CAR, FAR, TRAIN, T, parameters=c_sky, simulations=6)
+    search = random_search(CAR, FAR, TRAIN, T, parameters=c_sky, simulations=6)
     assert search.simulations == 6
     assert len(search.history) == 3
     # The reported losses are those of the start and of the returned controller.
@@ -142,7 +149,7 @@ def test_random_search_spends_the_budget_and_returns_its_best():
 def test_random_search_scores_an_uneven_last_chunk_without_counting_its_padding():
     # Five candidates in chunks of two: the last chunk is padded (one compilation for
     # every chunk), and only the five count.
-    search = jaxmr.random_search(
+    search = random_search(
         CAR, FAR, TRAIN, T, parameters=c_sky, simulations=10, population=2
     )
     assert search.simulations == 10 and len(search.history) == 5
@@ -208,7 +215,9 @@ def test_relaxed_inverse_is_smooth_where_the_hard_law_is_jagged():
             eqx.tree_at(lambda c: c.temperature, law, jnp.asarray(temperature)),
         )
         values = np.asarray(
-            population_losses(gains, pair, None, road_batch(TRAIN), setup)
+            population_losses(
+                gains, pair, None, road_batch(TRAIN), setup, noise="oracle"
+            )
         )
         quadratic = np.polyval(
             np.polyfit(np.asarray(steps), values, 2), np.asarray(steps)
@@ -234,14 +243,15 @@ def test_a_diverged_road_drops_out_of_the_gradient_instead_of_poisoning_it():
     pair = (CAR, jaxmr.Skyhook(2000.0, 1.0, temperature=0.1))
     setup = _setup(c_sky)
     x = (jnp.log(jnp.array(2000.0)),)
-    value, grad, values = loss_and_grad(x, pair, None, road_batch(bad), setup)
+    batch = road_batch(bad)
+    value, grad, values = loss_and_grad(x, pair, None, batch, setup, noise="oracle")
     assert not np.isfinite(float(values[1])) and np.isfinite(float(values[0]))
     assert float(value) == np.inf
     # The first road twice: a batch of the same size runs the same compiled code, so
     # the comparison is exact (a batch of one compiles differently, and this closed
     # loop turns that rounding into ~1e-12 of the gradient).
     first = jax.tree.map(lambda v: v[jnp.array([0, 0])], TRAIN)
-    _, alone, _ = loss_and_grad(x, pair, None, road_batch(first), setup)
+    _, alone, _ = loss_and_grad(x, pair, None, road_batch(first), setup, noise="oracle")
     assert np.isfinite(float(grad[0])) and float(grad[0]) != 0.0
     np.testing.assert_allclose(grad[0], alone[0], rtol=1e-14)
 
@@ -250,7 +260,7 @@ def test_annealed_tuning_is_judged_on_the_hard_law():
     # Soft from 0.3 to 0.05 over four steps, checked every second step: the losses
     # reported are the hard law's (computed again here by `evaluate`), and the
     # held-out loss is the returned controller's on the validation roads.
-    result = jaxmr.tune(
+    result = tune(
         CAR,
         FAR,
         TRAIN,
@@ -276,9 +286,7 @@ def test_annealed_tuning_is_judged_on_the_hard_law():
 
 
 def test_cma_es_spends_its_budget_and_stops_at_a_target():
-    search = jaxmr.cma_es(
-        CAR, FAR, TRAIN, T, parameters=c_sky, simulations=18, population=4
-    )
+    search = cma_es(CAR, FAR, TRAIN, T, parameters=c_sky, simulations=18, population=4)
     # The start (2 runs) and two generations of 4 candidates on 2 roads.
     assert search.simulations == 2 + 2 * 8
     assert len(search.history) == 3
@@ -286,7 +294,7 @@ def test_cma_es_spends_its_budget_and_stops_at_a_target():
     assert search.loss == pytest.approx(mean_comfort(search.controller), rel=1e-10)
     assert search.loss < search.initial_loss
     # A target the start already meets: no generation is spent.
-    early = jaxmr.cma_es(
+    early = cma_es(
         CAR,
         FAR,
         TRAIN,
@@ -306,9 +314,7 @@ def test_cma_es_spends_its_budget_and_stops_at_a_target():
         logger = logging.getLogger("jax._src.dispatch")
         logger.addHandler(handler)
         try:
-            jaxmr.cma_es(
-                CAR, FAR, TRAIN, T, parameters=c_sky, simulations=18, population=4
-            )
+            cma_es(CAR, FAR, TRAIN, T, parameters=c_sky, simulations=18, population=4)
         finally:
             logger.removeHandler(handler)
     assert not [m for m in seen if "ask" in m or "tell" in m], seen
@@ -320,7 +326,7 @@ def test_current_schedule_tuned_in_value_space():
     sol = jaxmr.simulate_system(CAR, jax.tree.map(lambda x: x[0], TRAIN), start, T)
     np.testing.assert_allclose(sol.command, 0.1, rtol=1e-12)
     one = jax.tree.map(lambda x: x[:1], TRAIN)
-    result = jaxmr.tune(
+    result = tune(
         CAR,
         start,
         one,
@@ -349,7 +355,7 @@ def test_current_schedule_tuned_in_value_space():
 
 def test_bad_tuning_input():
     with pytest.raises(ValueError, match="must be positive"):
-        jaxmr.tune(
+        tune(
             CAR,
             jaxmr.Skyhook(0.0, 1.0),
             TRAIN,
@@ -359,7 +365,7 @@ def test_bad_tuning_input():
             progress=False,
         )
     with pytest.raises(ValueError, match="batch with one leading axis"):
-        jaxmr.tune(
+        tune(
             CAR,
             jaxmr.Skyhook(10.0, 1.0),
             jaxmr.Sine(0.01, 1.0),
@@ -382,9 +388,7 @@ def test_bad_tuning_input():
 def test_bad_schedules_are_named(settings, message):
     # Refused before anything is simulated (no compilation).
     with pytest.raises(ValueError, match=message):
-        jaxmr.tune(
-            CAR, FAR, TRAIN, T, parameters=c_sky, steps=2, progress=False, **settings
-        )
+        tune(CAR, FAR, TRAIN, T, parameters=c_sky, steps=2, progress=False, **settings)
 
 
 def _scaled(f):
@@ -406,7 +410,7 @@ def test_tuning_over_damper_samples_averages_over_them():
     # over them is the mean over both samples and both roads, each computed again
     # here by `evaluate`; the tuned pair is the nominal car with the tuned law.
     samples = _two_samples()
-    result = jaxmr.tune(
+    result = tune(
         CAR,
         FAR,
         TRAIN,
@@ -417,7 +421,7 @@ def test_tuning_over_damper_samples_averages_over_them():
         progress=False,
     )
     per_sample = [
-        float(np.mean(jaxmr.evaluate(_scaled(f), FAR, TRAIN, T)["comfort"]))
+        float(np.mean(evaluate(_scaled(f), FAR, TRAIN, T)["comfort"]))
         for f in (0.6, 1.5)
     ]
     assert result.simulations == 2 * 2
@@ -479,7 +483,9 @@ def test_worst_share_tunes_the_worst_sample():
         # `prepare` hands back the hard pair, as every tuner judges it; the gradient
         # is taken of the relaxed law, as `tune` takes it.
         relaxed = (pair[0], jaxmr.with_temperature(pair[1], 0.1))
-        value, grads, per_run = loss_and_grad(u, relaxed, these, batch, setup)
+        value, grads, per_run = loss_and_grad(
+            u, relaxed, these, batch, setup, noise="oracle"
+        )
         return float(value), float(grads[0]), np.asarray(per_run)
 
     value, grad, per_run = value_and_grad(0.5, samples)
@@ -502,7 +508,7 @@ def test_worst_share_is_checked():
         ("max", TypeError, None),
     ):
         with pytest.raises(error, match=message):
-            jaxmr.tune(
+            tune(
                 CAR,
                 FAR,
                 TRAIN,
@@ -514,7 +520,7 @@ def test_worst_share_is_checked():
                 progress=False,
             )
     with pytest.raises(ValueError, match="needs `samples=`"):
-        jaxmr.tune(
+        tune(
             CAR,
             FAR,
             TRAIN,
@@ -561,8 +567,9 @@ def test_the_tuners_deprecated_loop_keywords_warn_and_relay_the_same_settings(
         for name in ("evaluate", "gradient", "search")
     )
 
-    def relay(*args):
-        raise _Relayed(args)
+    def relay(*args, **options):
+        # (`prepare`'s keywords too: whether the tuner chooses its substeps)
+        raise _Relayed(args + tuple(sorted(options.items())))
 
     for module in (gradient_module, search_module):
         monkeypatch.setattr(module, "prepare", relay)
@@ -571,12 +578,10 @@ def test_the_tuners_deprecated_loop_keywords_warn_and_relay_the_same_settings(
     old = dict(dt=5e-4, substeps=2, delay=2)
     budget = dict(parameters=c_sky, simulations=100)
     calls = {
-        "tune": lambda **kw: jaxmr.tune(CAR, FAR, TRAIN, T, parameters=c_sky, **kw),
-        "random_search": lambda **kw: jaxmr.random_search(
-            CAR, FAR, TRAIN, T, **budget, **kw
-        ),
-        "cma_es": lambda **kw: jaxmr.cma_es(CAR, FAR, TRAIN, T, **budget, **kw),
-        "evaluate": lambda **kw: jaxmr.evaluate(CAR, FAR, TRAIN, T, **kw),
+        "tune": lambda **kw: tune(CAR, FAR, TRAIN, T, parameters=c_sky, **kw),
+        "random_search": lambda **kw: random_search(CAR, FAR, TRAIN, T, **budget, **kw),
+        "cma_es": lambda **kw: cma_es(CAR, FAR, TRAIN, T, **budget, **kw),
+        "evaluate": lambda **kw: evaluate(CAR, FAR, TRAIN, T, **kw),
     }
     for who, call in calls.items():
         with pytest.raises(_Relayed) as new:
@@ -591,11 +596,11 @@ def test_the_tuners_deprecated_loop_keywords_warn_and_relay_the_same_settings(
 
     # A real run, old keywords (at their defaults) against none.
     with pytest.warns(DeprecationWarning, match="random_search"):
-        old_run = jaxmr.random_search(
+        old_run = random_search(
             CAR, FAR, TRAIN, T, **budget | dict(simulations=4), population=2,
             dt=1e-3, substeps=4, delay=1,
         )  # fmt: skip
-    new_run = jaxmr.random_search(
+    new_run = random_search(
         CAR, FAR, TRAIN, T, **budget | dict(simulations=4), population=2
     )
     assert old_run.history == new_run.history

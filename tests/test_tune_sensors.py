@@ -208,7 +208,7 @@ def test_sensor_keys_are_checked():
     roads = _roads()
     with pytest.raises(TypeError, match="sensor_key=jax.random.key"):
         jaxmr.tune(CAR, law, roads, T, parameters=c_sky, sensors=SENSORS)
-    with pytest.raises(ValueError, match="not with the oracle"):
+    with pytest.raises(ValueError, match="not with the perfect readings"):
         jaxmr.evaluate(CAR, law, roads, T, sensor_key=KEY)
     with pytest.raises(TypeError, match="must be a jaxmr.Sensors"):
         jaxmr.random_search(

@@ -3,8 +3,6 @@
 (`jaxmr.export_stablehlo`)."""
 
 import argparse
-import dataclasses
-import json
 from pathlib import Path
 
 import jaxmr
@@ -58,7 +56,7 @@ def run(args: argparse.Namespace) -> int:
     if not source.is_file():
         raise CLIError(f"{source}: no such file")
     try:
-        controller = _load_controller(source)
+        controller = jaxmr.load_model(source)
     except (OSError, ValueError, TypeError, KeyError) as e:
         raise CLIError(f"{source}: {e}") from e
     if not isinstance(controller, jaxmr.ObserverBasedController):
@@ -97,24 +95,3 @@ def run(args: argparse.Namespace) -> int:
     for path in written:
         print(path)
     return 0
-
-
-def _load_controller(source: Path):
-    """The controller saved in `source`. Its `Sampling` is rebuilt here: the model
-    files' reader makes every number an array, and a `Sampling` holds plain Python
-    numbers (static: its dt sets the compiled loop's step)."""
-    data = json.loads(source.read_text())
-    model = data.get("model") if isinstance(data, dict) else None
-    sampling = None
-    if isinstance(model, dict) and model.get("type") == "ObserverBasedController":
-        stored = model.get("fields", {}).pop("sampling", None)
-        if isinstance(stored, dict):
-            fields = stored.get("fields", {})
-            sampling = jaxmr.Sampling(
-                dt=float(fields.get("dt", jaxmr.Sampling().dt)),
-                delay=int(fields.get("delay", jaxmr.Sampling().delay)),
-            )
-    controller = jaxmr.model_from_dict(data)
-    if sampling is not None:
-        controller = dataclasses.replace(controller, sampling=sampling)
-    return controller

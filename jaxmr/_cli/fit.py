@@ -69,8 +69,8 @@ def add_parser(subparsers) -> None:
             "one with the lowest held-out error, refit it on all the files). Writes "
             "the fitted model with a report (parameters, standard errors, NRMSE per "
             "file, why the fit stopped, unidentified parameters) and the operating "
-            "range it was fitted on (displacement, velocity, input: "
-            "jaxmr.load_fitted_range)."
+            "range it was fitted on (displacement, velocity, input), which "
+            "jaxmr.load_model gives back to the model."
         ),
     )
     command.add_argument(
@@ -114,8 +114,9 @@ def add_parser(subparsers) -> None:
         default=None,
         metavar="N",
         help=(
-            "with --model auto: the fewest screened candidates that get a full fit; "
-            "every one within 1.5x of the best screened score does too (default 3)"
+            "with --model auto: the fewest screened candidates (a short fit on one "
+            "cycle of each file) that get a full fit; every one within 1.5x of the "
+            "best screened score does too (default 2)"
         ),
     )
     command.add_argument(
@@ -205,7 +206,7 @@ def run(args: argparse.Namespace) -> int:
             name, args.files, experiments, result, elapsed, selection, warnings
         )
         _print_summary(name, result, elapsed)
-        # Where the model was fitted, saved beside it (`jaxmr.load_fitted_range`).
+        # Where the model was fitted, saved beside it (`jaxmr.load_model` gives it back).
         fitted_range = jaxmr.FittedRange.from_experiments(experiments)
         if _save_model(
             result.model, out, report, fitted_range, replacing=out in replacing
@@ -220,9 +221,11 @@ def _diverged(files, result, out: Path) -> bool:
     """Say so (and return True) when the fitted model's simulation of an experiment
     diverged: its state left its bounds or stopped being finite (`FitResult.rmse`
     is then inf), so its forces are no fit, however finite."""
+    names, at = result.experiment_names, _diverged_times(result)
     bad = [
         f"{path} (experiment {name!r})"
-        for path, name, error in zip(files, result.experiment_names, result.rmse)
+        + (f" at t = {t:g} s" if math.isfinite(t) else "")
+        for path, name, error, t in zip(files, names, result.rmse, at)
         if not math.isfinite(error)
     ]
     if bad:
@@ -230,8 +233,8 @@ def _diverged(files, result, out: Path) -> bool:
             f"jaxmr fit: failed: the fitted model's simulation diverged on "
             f"{', '.join(bad)} (its state left its bounds or stopped being finite); "
             f"the parameters are in {out}, but they are no fit. Check that the "
-            "displacement and velocity columns agree (`jaxmr predict` names the time), "
-            "or try another model or more starts (--starts)",
+            "displacement and velocity columns agree there (a step in one that the "
+            "other does not show), or try another model or more starts (--starts)",
             file=sys.stderr,
         )
     return bool(bad)
@@ -599,9 +602,15 @@ def _fit_report(name, files, experiments, result, elapsed, selection, warnings) 
                 "experiment": str(n),
                 "rmse": _json_number(r),  # in `force_unit`
                 "nrmse": _json_number(e),
+                # Where its simulation diverged [s] (`FitResult.diverged_at`), or null.
+                "diverged_at_s": _json_number(d),
             }
-            for f, n, r, e in zip(
-                files, result.experiment_names, result.rmse, result.nrmse
+            for f, n, r, e, d in zip(
+                files,
+                result.experiment_names,
+                result.rmse,
+                result.nrmse,
+                _diverged_times(result),
             )
         ],
         "reason": result.reason,
@@ -663,6 +672,13 @@ def _parsimony_json(decision) -> dict | None:
             for n, m in zip(decision.names, decision.median_nrmse)
         ],
     }
+
+
+def _diverged_times(result) -> list[float]:
+    """`FitResult.diverged_at`, NaN for each experiment where it is not known."""
+    if result.diverged_at is None:
+        return [math.nan] * len(result.experiment_names)
+    return [float(t) for t in result.diverged_at]
 
 
 def _json_number(x):

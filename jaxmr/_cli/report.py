@@ -344,7 +344,7 @@ def _range_markdown(params, data: dict, files, experiments) -> list[str]:
         "",
         "The model was fitted on these extremes of its files' samples; beyond them "
         "its force is extrapolation (`jaxmr.simulate`, `sweep` and `simulate_system` "
-        "given `fitted_range=jaxmr.load_fitted_range(...)` warn there).",
+        "warn there: `jaxmr.load_model` gives the model this range).",
         "",
         "| quantity | low | high | unit |",
         "|---|---:|---:|---|",

@@ -25,6 +25,7 @@ from .riccati import (
     solve_lyapunov as solve_lyapunov,
     solve_riccati as solve_riccati,
 )
+from .sampling import Sampling as Sampling
 from .schedule import CurrentSchedule as CurrentSchedule
 from .sensors import (
     Sensor as Sensor,

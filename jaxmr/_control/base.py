@@ -13,6 +13,11 @@ from .._misc import as_float_array, check_concrete
 class DamperPlant(eqx.Module):
     """The damper at one control sample: its state and motion, for inverse models.
 
+    A law is handed the simulated device itself only with perfect information
+    (`simulate_system(..., sensors="oracle")`); an `ObserverBasedController` hands
+    its law its observer's nominal model at the observed state
+    (`DamperObserver.plant`); otherwise every use raises, saying what to do.
+
     **Attributes:** `damper`, `state` (the damper's internal state), `x` [m or rad],
     `v` [m/s or rad/s] across it.
     """

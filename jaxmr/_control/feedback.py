@@ -71,9 +71,12 @@ class ForceFeedback(AbstractController):
     - `i_max`: the top of the current range $I_\max$ [A].
     - `temperature`: $T \ge 0$; 0 (default) is the hard law.
     - `model`: the damper the law inverts (its $F_y$ and its band, read at the
-      device's present state: `DamperPlant.with_model`), e.g. the nominal fit while
-      the simulated unit is a sample drawn around it; `None` (default) inverts the
-      simulated damper itself, a perfect model.
+      state of the plant it is handed: `DamperPlant.with_model`), e.g. the nominal
+      fit while the simulated unit is a sample drawn around it; `None` (default)
+      inverts the plant's own damper. A bare law is handed the simulated device
+      (and its true state) only with `simulate_system(..., sensors="oracle")`;
+      inside an `ObserverBasedController` it is handed the observer's nominal model
+      at its observed state.
     """
 
     network: eqx.Module

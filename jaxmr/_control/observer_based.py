@@ -28,9 +28,9 @@ class ControllerState(eqx.Module):
 
 class _NoPlant(DamperPlant):
     """The damper a controller gets when it may not read the device: every use says
-    so (`simulate_system` with `sensors`, or an `ObserverBasedController` with neither
-    an observer nor the oracle). A `DamperPlant`, so that the laws' type checks pass
-    it on to the use that raises with `why`."""
+    so (`simulate_system` without `sensors="oracle"`, or an `ObserverBasedController`
+    with neither an observer nor the oracle). A `DamperPlant`, so that the laws' type
+    checks pass it on to the use that raises with `why`."""
 
     damper: Any = None
     state: Any = None
@@ -56,16 +56,17 @@ class ObserverBasedController(AbstractController):
     (`DamperObserver.plant`) instead of the simulated device; the observer notes the
     command (it acts `sampling.delay` samples later). Where no sensor reads the
     damper's force, the law reads the observer's model force as `damper_force`
-    (with perfect information, `sensors="oracle"`, the true force is read, and
-    corrects the observer as a perfect load cell would).
+    (with perfect readings, `simulate_system`'s default `sensors=None` or
+    `"oracle"`, the true force is read, and corrects the observer as a perfect load
+    cell would).
 
     The whole state is a fixed-size pytree (`ControllerState`) stepped by this pure
     function at a fixed sample time: what runs on a real-time target.
 
     `oracle=True` hands the law the simulated device itself, at its true state (the
-    perfect information of a bare law in `simulate_system`), for research
-    comparisons; it excludes an observer. With neither, the law may not invert a
-    damper (laws such as `OnOffSkyhook` need none).
+    perfect information of a bare law in `simulate_system(..., sensors="oracle")`),
+    for research comparisons; it excludes an observer. With neither, the law may not
+    invert a damper (laws such as `OnOffSkyhook` need none).
 
     **Arguments:**
 

@@ -10,6 +10,7 @@ import jax.numpy as jnp
 
 from .._current_law import is_law, resolve
 from .._custom_types import Array, Scalar, ScalarLike, State
+from .._fitted_range import FittedRange
 from .._misc import Check, check_concrete, is_concrete
 
 # Currents at which a model with current laws is checked, evenly over the range the
@@ -31,8 +32,22 @@ class AbstractHysteresis(eqx.Module):
     parameters (every current law already replaced by its value: the framework calls
     `model.at(i)` first), set `state_names`, and optionally override `initial_state` and
     `constraints`. Nothing else in jaxmr needs to change.
+
+    Every model also takes the keyword `fitted_range`: the operating range it was
+    fitted on (a `jaxmr.FittedRange`, default None: not known). `load_model` sets it
+    from the file and `save_model` writes it; `simulate`, `sweep` and
+    `simulate_system` warn (`OutsideFittedRange`) when they drive the model beyond
+    it. It is a static field, not a parameter: no array, never fitted, differentiated
+    or batched, and a model without one has the pytree it always had.
     """
 
+    # Static (part of the pytree's structure, not a leaf): it rides along through
+    # `eqx.tree_at`, `vmap`, `Damper(...)` and the systems, costs nothing in the
+    # solve, and None (the default) leaves every model's leaves and results as they
+    # were. Keyword-only so that subclasses' fields keep their positions.
+    fitted_range: FittedRange | None = eqx.field(
+        default=None, static=True, kw_only=True, repr=False
+    )
     state_names: ClassVar[tuple[str, ...]] = ()
 
     def at(self, current: ScalarLike) -> "AbstractHysteresis":
@@ -121,6 +136,13 @@ class AbstractHysteresis(eqx.Module):
         ]
 
     def __check_init__(self):
+        if self.fitted_range is not None and not isinstance(
+            self.fitted_range, FittedRange
+        ):
+            raise TypeError(
+                f"{type(self).__name__}: `fitted_range` must be a jaxmr.FittedRange "
+                f"or None, got {type(self.fitted_range).__name__}."
+            )
         # Only parameters given as plain numbers can be checked before a current is known
         # (laws) or before a fit resolves them (constraint wrappers).
         if any(isinstance(p, eqx.Module) for p in _parameters(self)):

@@ -12,7 +12,7 @@ import optimistix as optx
 
 from .._channel import ChannelDelay
 from .._current_law import ConstantLaw, is_law
-from .._damper import Damper
+from .._damper import Damper, with_fitted_range
 from .._distribute import batch_mesh, gather, spread
 from .._hysteresis import AbstractHysteresis
 from .._misc import warn_if_float32
@@ -127,6 +127,7 @@ def _report(free, static, data, outcome, stats_data, threshold):
         stats,
         outcome,
         threshold,
+        times=data.split(np.asarray(data.t)),
     )
 
 
@@ -214,6 +215,9 @@ def fit(
     **Returns:** a `FitResult`.
     """
     warn_if_float32("jaxmr.fit")
+    # A start read from a file holds the range of the data it was fitted on, not
+    # of these: the fitted model holds none (`with_fitted_range` gives it one).
+    model = with_fitted_range(model, None)
     free, static = _split_model(model)
     experiments = list(experiments)
     policy = as_step_policy(integrator)
@@ -244,7 +248,7 @@ def fit(
     elif isinstance(starts, int):
         ys = spread_starts(model, starts, spread, key, scale)
     else:
-        models = list(starts)
+        models = [with_fitted_range(m, None) for m in starts]
         frees = [eqx.filter(m, free_filter(m)) for m in models]
         ys = jax.tree.map(lambda *xs: jnp.stack(xs), *frees)
     best_y, outcomes = iterate(
@@ -337,6 +341,7 @@ def fit_each(
     if not experiments:
         raise ValueError("`experiments` is empty: give at least one experiment.")
     own_starts = None
+    model = with_fitted_range(model, None)  # as in `fit`
     if isinstance(model, (list, tuple)):
         if len(model) != len(experiments):
             raise ValueError(
@@ -429,6 +434,7 @@ def fit_each(
                 stats,
                 outcomes[p],
                 identifiability_threshold,
+                times=data.split(np.asarray(data.t)),
             )
         )
     return results
@@ -441,6 +447,8 @@ def _batched_statistics(free, static, data, stats_data):
 
     def one(f, d, sd):
         r, jac = value_and_jacobian(residuals, f, static, sd, None)
-        return simulate(eqx.combine(f, static), d), r, jac
+        # Guarded, as `_report`'s: a state that left its bounds is a failure (NaN,
+        # `FitResult.diverged_at`), not a force.
+        return simulate(eqx.combine(f, static), d, True), r, jac
 
     return jax.vmap(one)(free, data, stats_data)

@@ -131,6 +131,13 @@ class FitResult:
       with a finite loss above 0) and every combination identified; `outcome`: that
       verdict in words.
     - `interrupted`: whether Ctrl-C or the caller's `stop` flag stopped it.
+    - `diverged_at`: per experiment, the time [s] (on the experiment's own `t`) from
+      which its simulation at the fitted parameters diverged: the model's state left
+      its bounds (`state_bounds`, e.g. Dahl's |z| <= 1) or stopped being finite, so
+      its forces from there on are no prediction (NaN where it held; `None` from
+      `fit_system`). Such an experiment's `rmse` is inf, the fit is a failure, and
+      `outcome` (`divergence`) names the experiment and the time, as `jaxmr
+      predict` and `jaxmr report` do.
     """
 
     model: eqx.Module
@@ -150,6 +157,25 @@ class FitResult:
     history: tuple[float, ...]
     num_steps: int
     stop: StopReason
+    diverged_at: np.ndarray | None = None
+
+    @property
+    def divergence(self) -> str | None:
+        """Where the fitted model's simulation diverged, in words (each experiment
+        and its time [s], from `diverged_at`), or None where none did."""
+        if self.diverged_at is None:
+            return None
+        where = [
+            f"experiment {name!r} at t = {float(t):g} s"
+            for name, t in zip(self.experiment_names, self.diverged_at)
+            if np.isfinite(t)
+        ]
+        if not where:
+            return None
+        return (
+            f"the fitted model's simulation diverged on {', '.join(where)} (its state "
+            "left its bounds or stopped being finite)"
+        )
 
     @property
     def reason(self) -> str:
@@ -174,13 +200,17 @@ class FitResult:
                 return "converged: no relative improvement left (the noise floor)"
             return stop.message  # "converged (Levenberg–Marquardt's tolerance met)"
         if stop in (StopReason.INTERRUPTED, StopReason.DEGENERATE):
-            return self.reason  # "interrupted at step ...", "not converged: ..."
-        if stop.converged:  # stopped well, not identified
-            return (
+            verdict = self.reason  # "interrupted at step ...", "not converged: ..."
+        elif stop.converged:  # stopped well, not identified
+            verdict = (
                 f"not converged: {len(self.unidentified)} parameter combination(s) "
                 "not identified"
             )
-        return f"not converged: {self.reason}"  # failed, or max_steps reached
+        else:
+            verdict = f"not converged: {self.reason}"  # failed, or max_steps reached
+        # A diverged experiment is never converged (its rmse is inf): say where.
+        divergence = self.divergence
+        return verdict if divergence is None else f"{verdict}; {divergence}"
 
     @property
     def interrupted(self) -> bool:
@@ -628,14 +658,17 @@ def statistics_from(r, J_raw, free, static, groups, errors=None) -> Statistics:
         nan = np.full(p, np.nan)
         square = np.full((p, p), np.nan)
         return Statistics(values, nan, square, square, nan, np.eye(p))
-    _, sv, Vt = np.linalg.svd(Js, full_matrices=False)
-    # Undetermined: a singular value at most 1e-10 of the largest (eigenvalue 1e-20).
-    bread, loose = covariance(sv**2, Vt.T, 1e-20)
-    cov_scaled = bread @ _middle(r, Js, groups, bread, errors) @ bread
-    cov = cov_scaled * scale[:, None] * scale[None, :]
-    cov = (cov + cov.T) / 2
-    std = np.where(loose, np.inf, np.sqrt(np.maximum(np.diag(cov), 0.0)))
-    with np.errstate(invalid="ignore", divide="ignore"):
+    # A diverged model (absurd but finite forces) overflows these products: its
+    # errors come out inf or NaN, which the result reports, with no NumPy warning.
+    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+        _, sv, Vt = np.linalg.svd(Js, full_matrices=False)
+        # Undetermined: a singular value at most 1e-10 of the largest (eigenvalue
+        # 1e-20).
+        bread, loose = covariance(sv**2, Vt.T, 1e-20)
+        cov_scaled = bread @ _middle(r, Js, groups, bread, errors) @ bread
+        cov = cov_scaled * scale[:, None] * scale[None, :]
+        cov = (cov + cov.T) / 2
+        std = np.where(loose, np.inf, np.sqrt(np.maximum(np.diag(cov), 0.0)))
         corr = cov / np.outer(std, std)
     for matrix in (corr, cov):
         matrix[loose, :] = np.nan
@@ -655,9 +688,12 @@ def assemble(
     stats,
     outcome,
     threshold,
+    times=None,
 ) -> "FitResult":
     """A `FitResult` from the best free variables, the simulated and measured outputs
-    per experiment (lists of arrays), the samples scored, and `statistics`."""
+    per experiment (lists of arrays), the samples scored, and `statistics`; `times`
+    [s] (a list of arrays like `simulated`, or None): where a simulation that is NaN
+    from some sample on (the guarded simulation of a diverged state) diverged."""
     constrained = eqx.combine(free, static)
     scored = list(zip(simulated, measured, kept_masks))
     rmse = [score.rmse(*s) for s in scored]
@@ -696,4 +732,15 @@ def assemble(
         history=outcome.history,
         num_steps=outcome.steps,
         stop=stop,
+        diverged_at=None if times is None else _diverged_at(simulated, times),
     )
+
+
+def _diverged_at(simulated, times) -> np.ndarray:
+    """Per experiment, the time [s] of its first simulated sample that is not finite
+    (NaN where all are)."""
+    at = []
+    for force, t in zip(simulated, times):
+        bad = ~np.isfinite(np.asarray(force))
+        at.append(float(np.asarray(t)[np.argmax(bad)]) if bad.any() else np.nan)
+    return np.asarray(at, dtype=float)

@@ -9,6 +9,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from .._damper import with_fitted_range
 from .data import StepPolicy, as_step_policy, pack, per_experiment, window
 from .residual import simulate_jit
 
@@ -54,7 +55,8 @@ def predict_all(
         smoothing=smoothing,
         need_force=False,
     )
-    force = np.asarray(simulate_jit(model, data, True))
+    # Off the model (a static field): a loaded model shares the fit's compilation.
+    force = np.asarray(simulate_jit(with_fitted_range(model, None), data, True))
     return data.split(force)
 
 

@@ -20,6 +20,7 @@ import optimistix as optx
 from .._closed_loop import Sampling, _as_controller, simulate_system
 from .._control.base import AbstractController
 from .._custom_types import Array, Float
+from .._damper import with_fitted_range
 from .._integrate import FixedStep
 from .._misc import as_float_array, is_concrete
 from .._parameter import free_filter, unwrap
@@ -321,7 +322,10 @@ def fit_system(
     - `output`: the simulated output compared with `measured` (a name of
       `SystemSolution.outputs`, default `"body_position"`).
     - `controller`: as in `simulate_system`: a constant current [A] (default 0, open
-      loop) or a fixed controller (its parameters are not fitted).
+      loop) or a fixed controller (its parameters are not fitted), which reads
+      perfect measurements but not the damper being fitted (`sensors=None`): a law
+      that inverts the damper runs inside an `ObserverBasedController` with its own
+      `DamperObserver`, as it ran on the rig.
     - `dt`: the simulation's sample time [s]; `None` (default): each record's own. A
       smaller `dt` must divide the records' sample times (outputs are compared every
       `sample time / dt` steps).
@@ -345,6 +349,7 @@ def fit_system(
             "`system` must be a jaxmr system (SingleDegreeOfFreedom, QuarterCar, ...), "
             f"got {type(system).__name__}."
         )
+    system = with_fitted_range(system, None)  # as in `jaxmr.fit`
     if isinstance(records, SystemRecord):
         records = [records]
     records = list(records)

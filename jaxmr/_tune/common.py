@@ -2,12 +2,13 @@
 
 import time
 from collections.abc import Sequence
+from typing import Any
 
 import equinox as eqx
 import jax
 import numpy as np
 
-from .._closed_loop import Sampling
+from .._closed_loop import Sampling, check_sensors, step_advice, steps_for_runs
 from .._control.base import AbstractController
 from .._control.observer_based import ObserverBasedController
 from .._control.sensors import Sensors
@@ -16,7 +17,7 @@ from .._distribute import to_host
 from .._integrate import FixedStep
 from .._systems.base import AbstractSystem
 from .batch import ROADS_EXAMPLE, batch_size, road_batch
-from .loss import Setup, losses
+from .loss import Setup, losses, sensing
 from .result import TuneResult
 from .space import as_space, as_tuple_where, from_values, initial_values, to_values
 
@@ -56,22 +57,82 @@ def prepare(
     sampling: Sampling,
     integrator: FixedStep,
     worst_share: float = 1.0,
+    *,
+    chosen: bool = False,
+    noise=None,
 ):
     """Every tuner's start: the checked inputs, the runs one evaluation simulates, the
     static `Setup` of the loss, the pair, the optimiser's starting variables and the
     `road_batch` of the roads. `sampling` and `integrator` come checked
-    (`loop_settings`)."""
+    (`loop_settings`); with `chosen` the substeps are chosen for the starting pair
+    (`choose_integrator`, its runs read through `noise`)."""
     runs = check_inputs(system, controller, roads, samples)
     share = check_worst_share(worst_share, samples, who)
     where = as_tuple_where(parameters)
     space = as_space(log_space, bounds, who)
-    setup = Setup(space, where, objective, duration, sampling, integrator, share)
     # Every tuner judges, keeps and returns the hard law (T = 0), whatever temperature
     # the controller was handed with: a relaxed law is a device for the gradient, not
     # what runs on the car.
     pair = (system, with_temperature(controller, 0.0))
     u0 = from_values(initial_values(pair, where, space, who), space, who)
+    integrator = choose_integrator(
+        who, integrator, chosen, pair, samples, roads, duration, sampling, noise
+    )
+    setup = Setup(space, where, objective, duration, sampling, integrator, share)
     return runs, setup, pair, u0, road_batch(roads)
+
+
+def chooses_steps(integrator, deprecated: dict) -> bool:
+    """Whether a tuner chooses its RK4 substeps (`choose_integrator`): no
+    `integrator` given, nor the deprecated `substeps`."""
+    return integrator is None and "substeps" not in deprecated
+
+
+def _item(batch, k: int):
+    """Element `k` of a batch (every array's leading axis)."""
+    return jax.tree.map(lambda x: x[k] if eqx.is_array(x) else x, batch)
+
+
+def choose_integrator(
+    who: str,
+    integrator: FixedStep,
+    chosen: bool,
+    pair,
+    samples,
+    roads,
+    duration: float,
+    sampling: Sampling,
+    noise,
+) -> FixedStep:
+    """The RK4 substeps per sample of a tuner's runs: `integrator` as given, or
+    (`chosen`) those `simulate_system` with no `integrator` chooses from the
+    damper's stiffness, for the stiffest run of the starting `pair` over the
+    `roads` (and every damper sample): `FixedStep()` where the damper is not stiff
+    (the runs then as they always were). The runs of a batch go under `vmap`,
+    where no run can choose for itself."""
+    if not chosen:
+        return integrator
+    system, controller = pair
+    n = batch_size(roads, "roads", ROADS_EXAMPLE)
+    systems = [("", system)]
+    if samples is not None:
+        count = batch_size(samples, "samples", "`FitResult.sample(...)` (in a system)")
+        systems = [(f"sample {s}, ", _item(samples, s)) for s in range(count)]
+    runs = []
+    for label, one in systems:
+        for j in range(n):
+            sensed = sensing(noise, j)
+            runs.append(
+                (
+                    f"{label}road {j}",
+                    one,
+                    _item(roads, j),
+                    controller,
+                    sensed.get("sensors"),
+                    sensed.get("key"),
+                )
+            )
+    return steps_for_runs(who, runs, duration, sampling)
 
 
 def own_sampling(controller, sampling, deprecated: dict):
@@ -86,29 +147,12 @@ def own_sampling(controller, sampling, deprecated: dict):
     return sampling
 
 
-def sensor_noise(sensors, sensor_key, who: str):
-    """`(sensors, sensor_key)` for the losses (`loss.sensing`), or None for perfect
-    information (`sensors="oracle"`)."""
-    if isinstance(sensors, str) and sensors == "oracle":
-        if sensor_key is not None:
-            raise ValueError(
-                f"{who}: `sensor_key` draws the sensors' noise; give it with "
-                "`sensors=` (e.g. jaxmr.realistic_sensors(system)), not with the "
-                "oracle's perfect information."
-            )
-        return None
-    if not isinstance(sensors, Sensors):
-        raise TypeError(
-            f"{who}: `sensors` must be a jaxmr.Sensors set (e.g. "
-            'jaxmr.realistic_sensors(system)) or "oracle" (perfect information), got '
-            f"{sensors!r}."
-        )
-    if not isinstance(sensor_key, jax.Array):
-        raise TypeError(
-            f"{who}: `sensors` need `sensor_key=jax.random.key(...)` for their noise, "
-            f"got {type(sensor_key).__name__}."
-        )
-    return sensors, sensor_key
+def sensor_noise(sensors, sensor_key, who: str) -> tuple[Sensors, Any] | str | None:
+    """What the losses' runs read (`loss.sensing`), `sensors` checked as
+    `simulate_system` checks them (`check_sensors`): `None` (perfect readings, no
+    device), `"oracle"` (perfect information) or `(sensors, sensor_key)`."""
+    sensors = check_sensors(sensors, sensor_key, who, "sensor_key")
+    return (sensors, sensor_key) if isinstance(sensors, Sensors) else sensors
 
 
 def check_worst_share(worst_share, samples, who: str) -> float:
@@ -182,8 +226,14 @@ def tune_result(
     simulations: int,
     start: float,
     reason: str,
+    who: str,
+    chosen: bool,
 ) -> TuneResult:
-    """A `TuneResult` for the best variables found (the hard pair)."""
+    """A `TuneResult` for the best variables found (the hard pair); `ValueError`,
+    saying what to change, when every parameter set tried failed (`who` the tuner,
+    `chosen` whether it chose its substeps)."""
+    if not np.isfinite(loss) and not reason.startswith("interrupted"):
+        raise ValueError(_failed(who, setup, chosen))
     seconds = time.perf_counter() - start
     values = to_values(best_u, setup.space)
     tuned_system, tuned = eqx.tree_at(setup.where, pair, values)
@@ -198,4 +248,22 @@ def tune_result(
         simulations=simulations,
         seconds=seconds,
         reason=reason,
+        integrator=setup.integrator,
+    )
+
+
+def _failed(who: str, setup: Setup, chosen: bool) -> str:
+    """What to change when no parameter set tried gave a finite loss."""
+    if chosen:
+        substeps, dt = setup.integrator.substeps, setup.sampling.dt
+        return (
+            f"{who}: every parameter set tried gave a non-finite loss, although the "
+            f"starting parameters' runs were finite at the {substeps} RK4 substeps "
+            f"per {dt:g} s sample chosen from the damper's stiffness: `objective` "
+            "is not finite on them (it must give a finite number for every run)."
+        )
+    return (
+        f"{who}: every parameter set tried gave a non-finite loss (a diverged run, "
+        f"or an `objective` that is not finite): "
+        f"{step_advice(setup.sampling, setup.integrator, False, who)}."
     )

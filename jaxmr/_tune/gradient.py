@@ -15,6 +15,7 @@ from .._distribute import to_host
 from .._integrate import FixedStep
 from .._systems.base import AbstractSystem
 from .common import (
+    chooses_steps,
     own_sampling,
     prepare,
     printer,
@@ -76,7 +77,7 @@ def tune(
     validation=None,
     samples: AbstractSystem | None = None,
     worst_share: float = 1.0,
-    sensors: Sensors | str = "oracle",
+    sensors: Sensors | str | None = None,
     sensor_key: jax.Array | None = None,
     sampling: Sampling | None = None,
     integrator: FixedStep | None = None,
@@ -132,8 +133,11 @@ def tune(
       conditional value at risk (CVaR) of the spread. 1 (default) is the mean over
       every sample; $1/S$ of $S$ samples the worst one alone; 0.3 the worst 30 %.
       Worst-case tuning: a law that must hold on every unit, not on the average one.
-    - `sensors`: what the controller reads, as in `simulate_system`: `"oracle"`
-      (default, perfect information) or a `Sensors` set (e.g.
+    - `sensors`: what the controller reads, as in `simulate_system`: `None`
+      (default: perfect readings but no device, so that a law that inverts the
+      damper must run inside an `ObserverBasedController` with its own
+      `DamperObserver`), `"oracle"` (perfect information, the device's true state
+      included: for research comparisons only) or a `Sensors` set (e.g.
       `realistic_sensors(system)`), the law then inside an `ObserverBasedController`
       whose estimator and observer can be tuned with it
       (`ObserverBasedController.tunable`).
@@ -148,7 +152,15 @@ def tune(
     - `sampling`, `integrator`: the controller's timing (a `Sampling`) and the RK4
       steps per sample (a `FixedStep`), as in `simulate_system`, whose defaults they
       share (an `ObserverBasedController`'s own `sampling` when none is given); the
-      deprecated `dt`, `substeps` and `delay` still work, as there.
+      deprecated `dt`, `substeps` and `delay` still work, as there. With no
+      `integrator`, the substeps are chosen as `simulate_system` chooses them, from
+      the damper's stiffness, for the stiffest run of the starting pair (each road,
+      each damper sample, simulated once before tuning): `FixedStep()` where the
+      damper is not stiff, else the power of two of substeps that keeps RK4 stable,
+      `ValueError` with what to change where even the most (1024) diverge. The
+      choice holds for the whole run (`TuneResult.integrator`); a parameter set
+      that drives its runs unstable later scores inf and is left behind. Where
+      every parameter set tried fails, `ValueError` says what to change.
     - `log_space`: optimise logarithms (default: positive parameters, relative
       steps); `False` optimises the values (signed weights, `CurrentSchedule.logits`);
       or one bool per parameter (signed weights tuned with positive filter corners).
@@ -160,6 +172,7 @@ def tune(
     **Returns:** a `TuneResult`.
     """
     sampling = own_sampling(controller, sampling, deprecated)
+    chosen = chooses_steps(integrator, deprecated)
     sampling, integrator = loop_settings("tune", sampling, integrator, deprecated)
     noise = sensor_noise(sensors, sensor_key, "tune")
     if not isinstance(steps, int) or steps < 1:
@@ -187,6 +200,8 @@ def tune(
         sampling,
         integrator,
         worst_share,
+        chosen=chosen,
+        noise=noise,
     )
     report = printer(progress, "tune step")
 
@@ -216,7 +231,7 @@ def tune(
         # Fresh noise at every step for the gradient; the hard law is judged on the
         # fixed draw (`check`). A law judged at every step (no relaxation) is judged
         # on the gradient's own loss: that draw too, for paired comparisons.
-        if noise is None or not relaxed:
+        if not isinstance(noise, tuple) or not relaxed:  # no sensors' noise
             return noise
         sensors, key = noise
         return sensors, jax.random.fold_in(jax.random.split(key)[1], k)
@@ -275,4 +290,6 @@ def tune(
         simulations=simulations,
         start=start,
         reason=reason,
+        who="tune",
+        chosen=chosen,
     )

@@ -36,17 +36,18 @@ class Setup:
 
 def sensing(noise, index) -> dict:
     """`simulate_system`'s keywords for road `index` of a batch read through
-    `noise = (sensors, key)`: the road's noise from `jax.random.fold_in(key, index)`
-    (none for perfect information, `noise` None)."""
-    if noise is None:
-        return {}
+    `noise = (sensors, key)`: the road's noise from `jax.random.fold_in(key, index)`;
+    for perfect readings, `noise` None or `"oracle"` (`common.sensor_noise`), that
+    value as `sensors`."""
+    if not isinstance(noise, tuple):
+        return {"sensors": noise}
     sensors, key = noise
     return {"sensors": sensors, "key": jax.random.fold_in(key, index)}
 
 
 def _one_run(u, system, controller, run, setup: Setup, noise=None):
-    """The objective of one road `run = (road, index)`, read through `noise =
-    (sensors, key)` (None: perfect information)."""
+    """The objective of one road `run = (road, index)`, read through `noise`
+    (`sensing`)."""
     road, index = run
     system, controller = eqx.tree_at(
         setup.where, (system, controller), to_values(u, setup.space)
@@ -119,8 +120,8 @@ def mean_or_inf(values, valid=None, share: float = 1.0):
 @eqx.filter_jit
 def losses(u, pair, samples, batch, setup: Setup, noise=None):
     """The objective of every run of a `road_batch`, shape (roads,) or (samples,
-    roads), padding included, and the batch's mean (`mean_or_inf`); `noise`:
-    `(sensors, key)` for the controller to read sensors (`sensing`), or None."""
+    roads), padding included, and the batch's mean (`mean_or_inf`); `noise`: what
+    the controller reads (`sensing`)."""
     system, controller = pair
     roads, valid = batch
     values = _over_runs(

@@ -3,6 +3,7 @@
 import dataclasses
 
 from .._control.base import AbstractController
+from .._integrate import FixedStep
 from .._systems.base import AbstractSystem
 
 
@@ -29,6 +30,9 @@ class TuneResult:
       twice a forward run more; the hard-law checks of `tune` count too).
     - `seconds`: wall time, compilation included.
     - `reason`: why it stopped.
+    - `integrator`: the RK4 substeps per sample its runs took (a `FixedStep`: the
+      one given, or the one chosen from the damper's stiffness): pass it to
+      `evaluate` or `simulate_system` to run the tuned pair at the very same steps.
     """
 
     system: AbstractSystem
@@ -41,3 +45,4 @@ class TuneResult:
     simulations: int
     seconds: float
     reason: str
+    integrator: FixedStep | None = None

@@ -17,6 +17,7 @@ from .._distribute import to_host
 from .._integrate import FixedStep
 from .._systems.base import AbstractSystem
 from .common import (
+    chooses_steps,
     finite_min,
     own_sampling,
     prepare,
@@ -29,8 +30,8 @@ from .result import TuneResult
 from .space import as_space, per_leaf
 
 
-def _prepare(who, simulations, *args):
-    runs, setup, pair, u0, batch = prepare(who, *args)
+def _prepare(who, simulations, *args, **options):
+    runs, setup, pair, u0, batch = prepare(who, *args, **options)
     if not isinstance(simulations, int) or simulations < runs:
         raise ValueError(
             f"{who}: `simulations` must be an integer >= the runs of one evaluation "
@@ -56,7 +57,7 @@ def random_search(
     samples: AbstractSystem | None = None,
     worst_share: float = 1.0,
     key: jax.Array | None = None,
-    sensors: Sensors | str = "oracle",
+    sensors: Sensors | str | None = None,
     sensor_key: jax.Array | None = None,
     sampling: Sampling | None = None,
     integrator: FixedStep | None = None,
@@ -80,6 +81,7 @@ def random_search(
     """
     who = "random_search"
     sampling = own_sampling(controller, sampling, deprecated)
+    chosen = chooses_steps(integrator, deprecated)
     sampling, integrator = loop_settings(who, sampling, integrator, deprecated)
     noise = sensor_noise(sensors, sensor_key, who)
     as_space(log_space, bounds, who)  # checks the bounds
@@ -99,6 +101,8 @@ def random_search(
         sampling,
         integrator,
         worst_share,
+        chosen=chosen,
+        noise=noise,
     )
     trials = simulations // runs
     flat0, unravel = ravel_pytree(u0)
@@ -172,6 +176,8 @@ def random_search(
         simulations=len(scores) * runs,
         start=start,
         reason=reason,
+        who=who,
+        chosen=chosen,
     )
 
 
@@ -203,7 +209,7 @@ def cma_es(
     samples: AbstractSystem | None = None,
     worst_share: float = 1.0,
     key: jax.Array | None = None,
-    sensors: Sensors | str = "oracle",
+    sensors: Sensors | str | None = None,
     sensor_key: jax.Array | None = None,
     sampling: Sampling | None = None,
     integrator: FixedStep | None = None,
@@ -237,6 +243,7 @@ def cma_es(
         ) from error
     who = "cma_es"
     sampling = own_sampling(controller, sampling, deprecated)
+    chosen = chooses_steps(integrator, deprecated)
     sampling, integrator = loop_settings(who, sampling, integrator, deprecated)
     noise = sensor_noise(sensors, sensor_key, who)
     runs, setup, pair, u0, batch = _prepare(
@@ -254,6 +261,8 @@ def cma_es(
         sampling,
         integrator,
         worst_share,
+        chosen=chosen,
+        noise=noise,
     )
     flat0, unravel = ravel_pytree(u0)
     size = population or 4 + int(3 * np.log(flat0.size))
@@ -326,4 +335,6 @@ def cma_es(
         simulations=spent,
         start=start,
         reason=reason,
+        who=who,
+        chosen=chosen,
     )
