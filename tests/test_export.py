@@ -88,6 +88,17 @@ def _synthetic(names, samples=1500, seed=0):
         + 900 * v
         + 5 * rng.standard_normal(samples),
     }
+    # The quarter car's state [m, m/s], measured (a full-state law), the body
+    # moving at 1.3 Hz and the wheel by the deflection below it.
+    body = 0.004 * np.sin(w1 * t + 0.5)
+    body_velocity = 0.004 * w1 * np.cos(w1 * t + 0.5)
+    signals |= {
+        "body_position": body,
+        "body_velocity": body_velocity,
+        "wheel_position": body - signals["damper_displacement"],
+        "wheel_velocity": body_velocity - v,
+        "damper_velocity": v + 1e-3 * rng.standard_normal(samples),
+    }
     return np.stack([signals[n] for n in names], axis=1)
 
 
@@ -203,7 +214,10 @@ def _rich_law(features, model=None):
     return eqx.tree_at(lambda f: f.network, law, network)
 
 
-@pytest.mark.parametrize("case", ["mlp", "spencer", "on-off"])
+@pytest.mark.parametrize(
+    "case",
+    ["mlp", "spencer", "on-off", "groundhook-dahl", "hybrid-lugre", "clipped-bingham"],
+)
 def test_the_c_controller_gives_the_jax_commands(tmp_path, case):
     car_sensors = ("body_acceleration", "damper_displacement", "wheel_acceleration")
     if case == "mlp":
@@ -237,6 +251,61 @@ def test_the_c_controller_gives_the_jax_commands(tmp_path, case):
             observer=jaxmr.DamperObserver(jaxmr.spencer_1997(), gain=0.3, substeps=16),
         )
         names = car_sensors + ("damper_force",)
+    elif case == "groundhook-dahl":
+        # Relaxed groundhook on a Dahl damper with a coil lag, the observer corrected
+        # by a load cell.
+        dahl = jaxmr.Damper(
+            jaxmr.Dahl(
+                k_x=jaxmr.LinearLaw(900.0, 2000.0),
+                k_w=jaxmr.LinearLaw(100.0, 500.0),
+                rho=300.0,
+            ),
+            jaxmr.FirstOrderLag(60.0),
+        )
+        controller = jaxmr.ObserverBasedController(
+            jaxmr.Groundhook(1500.0, 1.0, temperature=0.1),
+            estimator=jaxmr.VelocityEstimator(),
+            observer=jaxmr.DamperObserver(dahl, gain=0.3),
+        )
+        names = car_sensors + ("damper_force",)
+    elif case == "hybrid-lugre":
+        # The hard hybrid law (both on/off gates) on a LuGre damper, load cell.
+        lugre = jaxmr.LuGre(
+            sigma0=1e5,
+            sigma1=300.0,
+            sigma2=jaxmr.LinearLaw(800.0, 1500.0),
+            F_c=jaxmr.LinearLaw(100.0, 500.0),
+            F_s=jaxmr.LinearLaw(150.0, 700.0),
+            v_s=0.02,
+        )
+        controller = jaxmr.ObserverBasedController(
+            jaxmr.Hybrid(2000.0, 0.6, 1.0),
+            estimator=jaxmr.VelocityEstimator(),
+            observer=jaxmr.DamperObserver(lugre, gain=0.3),
+        )
+        names = car_sensors + ("damper_force",)
+    elif case == "clipped-bingham":
+        # Relaxed continuous clipped-optimal on the measured state (no estimator)
+        # through a stateless smoothed Bingham model.
+        bingham = jaxmr.Bingham(
+            f_c=jaxmr.LinearLaw(50.0, 600.0),
+            c0=jaxmr.LinearLaw(900.0, 1500.0),
+            velocity_scale=0.01,
+        )
+        controller = jaxmr.ObserverBasedController(
+            jaxmr.ContinuousClippedOptimal(
+                jnp.array([4e4, 6000.0, -2e4, -1500.0]), 1.0, temperature=0.1
+            ),
+            observer=jaxmr.DamperObserver(bingham),
+        )
+        names = (
+            "body_position",
+            "body_velocity",
+            "wheel_position",
+            "wheel_velocity",
+            "damper_displacement",
+            "damper_velocity",
+        )
     else:
         # No observer, no wheel accelerometer, another sample time and no delay.
         controller = jaxmr.ObserverBasedController(
@@ -297,18 +366,15 @@ def test_an_export_never_replaces_a_file_unless_forced(tmp_path, skyhook):
 
 
 def test_what_has_no_c_writer_says_so(skyhook):
-    groundhook = jaxmr.ObserverBasedController(
-        jaxmr.Groundhook(2000.0, 1.0),
-        estimator=jaxmr.VelocityEstimator(),
-        observer=jaxmr.DamperObserver(jaxmr.passenger_car_mr_damper()),
-    )
-    with pytest.raises(NotImplementedError, match="Groundhook"):
-        jaxmr.export_c(groundhook, "unused")
-    bingham = _observer_based(
-        jaxmr.Skyhook(2000.0, 1.0), damper=jaxmr.sas_brake_bingham()
-    )
-    with pytest.raises(NotImplementedError, match="Bingham"):
-        jaxmr.export_c(bingham, "unused")
+    # Each refusal names the class and what is supported.
+    on_off = _observer_based(jaxmr.OnOffGroundhook(1.0))
+    with pytest.raises(NotImplementedError, match="OnOffGroundhook.*supported: Sky"):
+        jaxmr.export_c(on_off, "unused")
+    normalized = jaxmr.NormalizedBoucWen(1e3, 500.0, 900.0, 100.0, 0.5, 2.0)
+    with pytest.raises(NotImplementedError, match="NormalizedBoucWen.*Dahl, LuGre"):
+        jaxmr.export_c(
+            _observer_based(jaxmr.Skyhook(2000.0, 1.0), damper=normalized), "unused"
+        )
     with pytest.raises(NotImplementedError, match="ObserverBasedController"):
         jaxmr.export_c(jaxmr.Skyhook(2000.0, 1.0), "unused")
     with pytest.raises(ValueError, match="C identifier"):

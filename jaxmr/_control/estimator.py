@@ -28,14 +28,16 @@ class EstimatorState(eqx.Module):
     damper_velocity: Scalar
 
 
-def _cos_of_root(u: Scalar) -> Scalar:
-    r"""$\cos\sqrt u$ for $u \ge 0$ and $\cosh\sqrt{-u}$ for $u < 0$ (one entire
-    function, $\sum_n (-u)^n/(2n)!$), with finite gradients at $u = 0$."""
+def _cos_of_root_minus_one(u: Scalar) -> Scalar:
+    r"""$\cos\sqrt u - 1 = -2\sin^2(\sqrt u/2)$ for $u \ge 0$ and
+    $\cosh\sqrt{-u} - 1 = 2\sinh^2(\sqrt{-u}/2)$ for $u < 0$ (one entire function,
+    $\sum_{n \ge 1} (-u)^n/(2n)!$), without the cancellation of $\cos - 1$ at small
+    $u$ and with finite gradients at $u = 0$."""
     small = jnp.abs(u) < 1e-8
     safe = jnp.where(small, 1.0, jnp.abs(u))
-    root = jnp.sqrt(safe)
-    big = jnp.where(u > 0, jnp.cos(root), jnp.cosh(root))
-    return jnp.where(small, 1 - u / 2 + u**2 / 24, big)
+    half = jnp.sqrt(safe) / 2
+    big = jnp.where(u > 0, -2 * jnp.sin(half) ** 2, 2 * jnp.sinh(half) ** 2)
+    return jnp.where(small, -u / 2 + u**2 / 24, big)
 
 
 class VelocityEstimator(eqx.Module):
@@ -103,21 +105,31 @@ class VelocityEstimator(eqx.Module):
         return EstimatorState(jnp.asarray(False), *([zero] * 8))
 
     def gains(self, dt: float) -> tuple[Scalar, Scalar, Scalar]:
-        r"""The tracker's $(\alpha, \beta, \gamma)$ [1] at sample time `dt` [s]: with
-        the poles' elementary symmetric functions $s_1, s_2, s_3$,
-        $\alpha = 1 - s_3$, $\beta = (3 + 3 s_3 - s_1 - s_2)/2$,
-        $\gamma = -(1 - s_1 + s_2 - s_3)$, for the poles $e^{-\omega_c dt}$ and
-        $e^{(-\zeta \pm \sqrt{\zeta^2 - 1})\,\omega_c\,dt}$."""
+        r"""The tracker's $(\alpha, \beta, \gamma)$ [1] at sample time `dt` [s], for
+        the poles $p_0 = e^{-\omega_c dt}$ and
+        $p_\pm = e^{(-\zeta \pm \sqrt{\zeta^2 - 1})\,\omega_c\,dt}$: with
+        $q_j = 1 - p_j$ and their elementary symmetric functions $e_2, e_3$,
+        $\alpha = 1 - p_0 p_+ p_-$, $\beta = e_2 - \tfrac32 e_3$, $\gamma = -e_3$
+        (the same as $\beta = (3 + 3 s_3 - s_1 - s_2)/2$,
+        $\gamma = -(1 - s_1 + s_2 - s_3)$ in the poles' own symmetric functions)."""
+        # In the poles' own symmetric functions beta and gamma are differences of
+        # terms of order 1 that leave w^2 and w^3 (gamma some 3e-5 at 5 Hz and 1 ms),
+        # so one ulp of an exp or a cos moved gamma by 1e-11 relative (eager against
+        # compiled). The q_j are small and, for zeta <= 1, every product and sum
+        # below has terms of one sign, each from expm1 or sin^2: a few ulps relative.
         w = 2 * jnp.pi * self.crossover * dt
-        real = jnp.exp(-w)
-        product = jnp.exp(-2 * self.damping * w)  # of the pair
-        total = (
-            2 * jnp.exp(-self.damping * w) * _cos_of_root(w**2 * (1 - self.damping**2))
-        )  # the pair's sum
-        s1 = real + total
-        s2 = real * total + product
-        s3 = real * product
-        return 1 - s3, (3 + 3 * s3 - s1 - s2) / 2, -(1 - s1 + s2 - s3)
+        a = -self.damping * w  # the pair's real part, times dt
+        minus_one = _cos_of_root_minus_one(w**2 * (1 - self.damping**2))
+        expm1_a = jnp.expm1(a)
+        q0 = -jnp.expm1(-w)
+        # q+ + q- = 2 - 2 e^a cos(b) and q+ q- = |e^(a + ib) - 1|^2 = (e^a - 1)^2
+        # + 2 e^a (1 - cos b), cos b - 1 = minus_one (cosh where overdamped).
+        pair_sum = -2 * (expm1_a * (1 + minus_one) + minus_one)
+        pair_product = expm1_a**2 - 2 * jnp.exp(a) * minus_one
+        e2 = q0 * pair_sum + pair_product
+        e3 = q0 * pair_product
+        alpha = -jnp.expm1(-(1 + 2 * self.damping) * w)
+        return alpha, e2 - 1.5 * e3, -e3
 
     def step(
         self, state: EstimatorState, measurement, dt: float

@@ -123,11 +123,9 @@ def _prune(source: str) -> str:
 @functools.partial(jax.jit, static_argnums=1)
 def _estimator_constants(estimator: VelocityEstimator, dt: float):
     """The numbers of `VelocityEstimator.step` that depend on its parameters alone,
-    computed as its compiled step computes them. Compiled, not op by op: the gains'
-    formula cancels terms of order 1 down to 3e-5 (gamma), so one ulp of difference in
-    an exp or cos (XLA rounds them differently in a fused kernel) moves gamma by
-    1e-11 relative, and the commands of a sensitive loop (a stiff Spencer observer)
-    by 1e-7 A over a second."""
+    computed as its compiled step computes them (XLA rounds exp, sin and cos in a
+    fused kernel apart from op by op by an ulp; the gains are well conditioned, so
+    that moves them by a few ulps at most)."""
     leak = jnp.exp(-2 * jnp.pi * estimator.high_pass * dt)
     alpha, beta, gamma = estimator.gains(dt)
     return leak, 1 - leak, alpha, beta / dt, gamma / dt**2
@@ -193,21 +191,33 @@ def _observer(
 ) -> str:
     """`DamperObserver.init`, `update`, `force` and `commanded` on `o`."""
     n, k, m = observer.substeps, nominal.nh, nominal.ns
+    # Array sizes: C has no empty arrays (a static law, no coil lag, has no state).
+    size_k, size_m = max(k, 1), nominal.size
     h = dt / n
     force_argument = ", double force" if measured_force else ""
     correction = ""
-    if measured_force:
+    if measured_force and k > 0:  # a static law has no state to correct
         gain = literal(observer.gain)
         correction = f"""
     {{
         /* DamperObserver._corrected: a share of the force error removed. */
         nominal_params q = nominal_at(nominal_effective(s, applied));
-        double value = nominal_hysteresis_force(&q, s, x, v), g[{k}], norm = 0.0;
+        double value = nominal_hysteresis_force(&q, s, x, v), g[{size_k}];
+        double norm = 0.0;
         double step;
         nominal_force_gradient(&q, s, x, v, g);
         for (i = 0; i < {k}; ++i) norm += g[i] * g[i];
         step = norm > 0.0 ? (force - value) / norm : 0.0;
         for (i = 0; i < {k}; ++i) s[i] = s[i] + {gain} * step * g[i];
+    }}"""
+    bounded = ""
+    if nominal.bounded:  # the model's bounds; the coil's state has none
+        bounded = f"""
+    {{
+        double bounds[{size_k}];
+        nominal_params q = nominal_at(nominal_effective(s, applied));
+        nominal_bounds(&q, bounds);
+        for (i = 0; i < {k}; ++i) s[i] = clip(s[i], -bounds[i], bounds[i]);
     }}"""
     init = nominal.initial_state("o->damper", "x", "command").replace("\n", "\n    ")
     return f"""
@@ -227,12 +237,13 @@ static void observer_init(observer *o, double x, double v, double command)
    samples; then the correction by a measured force; then the model's bounds. */
 static void observer_update(observer *o, double x, double v{force_argument})
 {{
-    double s[{m}], bounds[{k}], applied = o->commands[0];
+    double s[{size_m}], applied = o->commands[0];
     int i, j;
     for (i = 0; i < {m}; ++i) s[i] = o->damper[i];
     if (o->started) {{
         for (j = 0; j < {n}; ++j) {{
-            double f[3], xs[3], vs[3], k1[{m}], k2[{m}], k3[{m}], k4[{m}], y[{m}];
+            double f[3], xs[3], vs[3], k1[{size_m}], k2[{size_m}], k3[{size_m}];
+            double k4[{size_m}], y[{size_m}];
             f[0] = (double)j / {literal(n)};
             f[1] = ((double)j + 0.5) / {literal(n)};
             f[2] = ((double)j + 1.0) / {literal(n)};
@@ -251,12 +262,7 @@ static void observer_update(observer *o, double x, double v{force_argument})
                 s[i] = s[i] + {literal(h / 6)} * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i]
                                                 + k4[i]);
         }}
-    }}{correction}
-    {{
-        nominal_params q = nominal_at(nominal_effective(s, applied));
-        nominal_bounds(&q, bounds);
-        for (i = 0; i < {k}; ++i) s[i] = clip(s[i], -bounds[i], bounds[i]);
-    }}
+    }}{correction}{bounded}
     o->started = 1;
     for (i = 0; i < {m}; ++i) o->damper[i] = s[i];
     o->x = x;
@@ -359,7 +365,7 @@ typedef struct {{
    sample, and the last {delay + 1} commands [A], oldest (acting now) first. */
 typedef struct {{
     int started;
-    double damper[{parts.nominal.ns}];
+    double damper[{parts.nominal.size}];
     double x, v;
     double commands[{delay + 1}];
 }} {name}_observer;
@@ -554,11 +560,13 @@ def export_c(
     C and the JAX controller give the same commands to 1e-9 A.
 
     Supported: an `ObserverBasedController` (not `oracle`) with a
-    `VelocityEstimator` or none, a `DamperObserver` over a `BoucWen` or `Spencer`
-    damper (parameters numbers or `LinearLaw`, `ConstantLaw`, `ExponentialLaw`,
-    `PolynomialLaw`; current dynamics none or `FirstOrderLag`) or none, and the laws
-    `Skyhook`, `OnOffSkyhook` and `ForceFeedback` (`linear` or `mlp`, hard or
-    relaxed). Anything else raises `NotImplementedError` naming its class;
+    `VelocityEstimator` or none, a `DamperObserver` over a `BoucWen`, `Spencer`,
+    `Dahl`, `LuGre` or `Bingham` damper (parameters numbers or `LinearLaw`,
+    `ConstantLaw`, `ExponentialLaw`, `PolynomialLaw`; current dynamics none or
+    `FirstOrderLag`) or none, and the laws `Skyhook`, `OnOffSkyhook`, `Groundhook`,
+    `Hybrid`, `ContinuousClippedOptimal` (its state measured: no estimator gives the
+    positions) and `ForceFeedback` (`linear` or `mlp`), hard or relaxed. Anything
+    else raises `NotImplementedError` naming its class and what is supported;
     `export_stablehlo` exports any controller for an XLA runtime.
 
     **Arguments:**

@@ -2,6 +2,8 @@
 laws), its hysteresis law's rates, force, bounds and yield force, and the current
 dynamics, each the same arithmetic as the JAX model's method of the same name."""
 
+import dataclasses
+
 import equinox as eqx
 import numpy as np
 
@@ -14,15 +16,125 @@ from .._current_law import (
     PolynomialLaw,
 )
 from .._damper import Damper
-from .._hysteresis import BoucWen, Spencer
+from .._hysteresis import Bingham, BoucWen, Dahl, LuGre, Spencer
 from .syntax import literal
 
-# The hysteresis models written in C: their parameters, in the order of the model's
-# fields.
-_FIELDS = {
-    BoucWen: ("alpha", "c0", "A", "beta", "gamma", "n", "k0", "x0", "f0"),
-    Spencer: ("alpha", "c0", "k0", "c1", "k1", "x0", "gamma", "beta", "A", "n"),
+
+@dataclasses.dataclass(frozen=True)
+class _Model:
+    """A hysteresis law in C: its parameters (the model's fields, in order) and the
+    bodies of its functions over `const $p_params *q` (the parameters at the
+    effective current), the hysteretic state `s`, the deflection `x` and its rate
+    `v`; `$p` stands for the prefix. Each is the same arithmetic as the JAX method
+    of the same name."""
+
+    fields: tuple[str, ...]
+    # (No blank line in any: the source's unused functions are found by splitting it
+    # at blank lines.)
+    rates: str  # statements: ds[] = d s / dt
+    force: str  # an expression [N or N m]
+    gradient: str  # statements: g[] = d force / d s, as forward mode computes it
+    bounds: str | None  # statements: b[] = state_bounds; None: it states none
+    yield_force: str  # an expression [N or N m]
+    helpers: str = ""  # functions of q the others call
+    initial: tuple[str, ...] = ()  # the virgin state, expressions in x (default 0)
+
+
+_BOUC_WEN_BOUNDS = """\
+    /* z0 where beta + gamma > 0, else no bound. */
+    int bounded = q->beta + q->gamma > 0.0;
+    double safe = bounded ? q->beta + q->gamma : 1.0;
+    double z0 = pow(q->A / safe, 1.0 / q->n);
+    b[0] = bounded ? z0 : INFINITY;"""
+
+_SPENCER_HELPERS = """\
+/* Spencer's z0 = (A / (beta + gamma))^(1/n). */
+static double $p_z0(const $p_params *q)
+{
+    return pow(q->A / (q->beta + q->gamma), 1.0 / q->n);
 }
+
+/* The internal displacement's rate [m/s]. */
+static double $p_y_rate(const $p_params *q, double z, double y, double x, double v)
+{
+    return (q->alpha * z + q->c0 * v + q->k0 * (x - y)) / (q->c0 + q->c1);
+}
+"""
+
+_LUGRE_HELPERS = """\
+/* LuGre.stribeck [N] */
+static double $p_stribeck(const $p_params *q, double v)
+{
+    double r = v / q->v_s;
+    return q->F_c + (q->F_s - q->F_c) * exp(-(r * r));
+}
+
+/* LuGre._rate [m/s] */
+static double $p_y_rate(const $p_params *q, double y, double v)
+{
+    return v - q->sigma0 * fabs(v) * y / $p_stribeck(q, v);
+}
+"""
+
+# The hysteresis models written in C.
+_MODELS = {
+    BoucWen: _Model(
+        ("alpha", "c0", "A", "beta", "gamma", "n", "k0", "x0", "f0"),
+        rates="    ds[0] = bouc_wen_rate(s[0], v, q->A, q->beta, q->gamma, q->n);",
+        force="q->alpha * s[0] + q->c0 * v + q->k0 * (x - q->x0) + q->f0",
+        gradient="    g[0] = q->alpha;",
+        bounds=_BOUC_WEN_BOUNDS,
+        yield_force="fabs(q->alpha) * (isfinite(b[0]) ? b[0] : 1.0)",
+    ),
+    Spencer: _Model(
+        ("alpha", "c0", "k0", "c1", "k1", "x0", "gamma", "beta", "A", "n"),
+        # z seen clipped to 1e3 z0, as jaxmr's rates see it.
+        rates="""\
+    double z0 = $p_z0(q);
+    double z_max = (isfinite(z0) && z0 > 0.0) ? 1000.0 * z0 : INFINITY;
+    double z = clip(s[0], -z_max, z_max);
+    double y_rate = $p_y_rate(q, z, s[1], x, v);
+    ds[0] = bouc_wen_rate(z, v - y_rate, q->A, q->beta, q->gamma, q->n);
+    ds[1] = y_rate;""",
+        force="q->c1 * $p_y_rate(q, s[0], s[1], x, v) + q->k1 * (x - q->x0)",
+        gradient="""\
+    g[0] = q->c1 * (q->alpha / (q->c0 + q->c1));
+    g[1] = q->c1 * (-q->k0 / (q->c0 + q->c1));""",
+        bounds="    b[0] = $p_z0(q);\n    b[1] = INFINITY;",
+        yield_force="q->alpha * $p_z0(q)",
+        helpers=_SPENCER_HELPERS,
+        initial=("0.0", "$x"),  # y starts at x: the device at rest
+    ),
+    Dahl: _Model(
+        ("k_x", "k_w", "rho"),
+        rates="    ds[0] = q->rho * (v - fabs(v) * s[0]);",
+        force="q->k_x * v + q->k_w * s[0]",
+        gradient="    g[0] = q->k_w;",
+        bounds="    b[0] = 1.0;",
+        yield_force="q->k_w",
+    ),
+    LuGre: _Model(
+        ("sigma0", "sigma1", "sigma2", "F_c", "F_s", "v_s"),
+        rates="    ds[0] = $p_y_rate(q, s[0], v);",
+        force="q->sigma0 * s[0] + q->sigma1 * $p_y_rate(q, s[0], v) + q->sigma2 * v",
+        gradient="    g[0] = q->sigma0 + q->sigma1 * -(q->sigma0 * fabs(v) / "
+        "$p_stribeck(q, v));",
+        bounds="    b[0] = fmax(q->F_c, q->F_s) / q->sigma0;",
+        yield_force="fmax(q->F_c, q->F_s)",
+        helpers=_LUGRE_HELPERS,
+    ),
+    Bingham: _Model(
+        ("f_c", "c0", "f0", "velocity_scale"),
+        rates="    /* no state */",
+        force="q->f_c * (q->velocity_scale > 0.0 ? tanh(v / q->velocity_scale)\n"
+        "                                      : sign(v))\n"
+        "           + q->c0 * v + q->f0",
+        gradient="    /* no state */",
+        bounds=None,
+        yield_force="q->f_c",
+    ),
+}
+SUPPORTED = ", ".join(kind.__name__ for kind in _MODELS)
 
 
 def unsupported(kind: str, obj, supported: str) -> NotImplementedError:
@@ -72,157 +184,104 @@ def parameter(value, current: str, where: str) -> str:
 class DamperC:
     """The C functions of `damper` under the prefix `prefix` (`<prefix>_at`,
     `<prefix>_rates`, ...): `hysteresis()` the hysteresis law's alone (what an inverse
-    model reads), `dynamics()` the whole damper's (what an observer integrates)."""
+    model reads), `dynamics()` the whole damper's (what an observer integrates).
+    `nh` and `ns` are the hysteresis law's and the damper's state sizes (`size` the
+    latter at least 1: C has no empty arrays); `bounded` whether the law states
+    bounds on its state."""
 
     def __init__(self, damper: Damper, prefix: str):
         hysteresis = damper.hysteresis
-        if type(hysteresis) not in _FIELDS:
-            raise unsupported("the hysteresis model", hysteresis, "BoucWen, Spencer")
+        if type(hysteresis) not in _MODELS:
+            raise unsupported("the hysteresis model", hysteresis, SUPPORTED)
         if damper.dynamics is not None and type(damper.dynamics) is not FirstOrderLag:
             raise unsupported(
                 "the current dynamics", damper.dynamics, "None, FirstOrderLag"
             )
         self.damper = damper
         self.prefix = prefix
-        self.kind = type(hysteresis)
+        self.model = _MODELS[type(hysteresis)]
         self.nh = len(hysteresis.state_names)
         self.ns = len(damper.state_names)
+        self.size = max(self.ns, 1)
+        self.bounded = self.model.bounds is not None
 
     def hysteresis(self) -> str:
-        p, h = self.prefix, self.damper.hysteresis
-        fields = _FIELDS[self.kind]
+        p, h, model = self.prefix, self.damper.hysteresis, self.model
+        name = type(h).__name__
         assign = "\n".join(
-            f"    q.{f} = {parameter(getattr(h, f), 'u', f'{type(h).__name__}.{f}')};"
-            for f in fields
+            f"    q.{f} = {parameter(getattr(h, f), 'u', f'{name}.{f}')};"
+            for f in model.fields
         )
-        common = f"""\
-/* {type(h).__name__} parameters at the effective current u [A or V]. */
-typedef struct {{ double {", ".join(fields)}; }} {p}_params;
-
-static {p}_params {p}_at(double u)
+        unused = "    (void)q;\n    (void)s;\n    (void)x;\n    (void)v;"
+        bounds = ""
+        if model.bounds is not None:
+            bounds = f"""
+/* {name}.state_bounds */
+static void $p_bounds(const $p_params *q, double *b)
 {{
-    {p}_params q;
+{model.bounds}
+}}
+"""
+        # The yield force of a Bouc-Wen law reads its bounds.
+        reads_bounds = "b[" in model.yield_force
+        yield_bounds = (
+            f"    double b[{self.nh}];\n    $p_bounds(q, b);\n" if reads_bounds else ""
+        )
+        code = f"""\
+/* {name} parameters at the effective current u [A or V]. */
+typedef struct {{ double {", ".join(model.fields)}; }} $p_params;
+
+static $p_params $p_at(double u)
+{{
+    $p_params q;
     (void)u;
 {assign}
     return q;
 }}
-"""
-        if self.kind is BoucWen:
-            return (
-                common
-                + f"""
-/* BoucWen.rates */
-static void {p}_hysteresis_rates(const {p}_params *q, const double *s, double x,
+
+{model.helpers}
+/* {name}.rates */
+static void $p_hysteresis_rates(const $p_params *q, const double *s, double x,
                                  double v, double *ds)
 {{
-    (void)x;
-    ds[0] = bouc_wen_rate(s[0], v, q->A, q->beta, q->gamma, q->n);
+{unused}
+    (void)ds;
+{model.rates}
 }}
 
-/* BoucWen.force [N or N m] */
-static double {p}_hysteresis_force(const {p}_params *q, const double *s, double x,
+/* {name}.force [N or N m] */
+static double $p_hysteresis_force(const $p_params *q, const double *s, double x,
                                    double v)
 {{
-    return q->alpha * s[0] + q->c0 * v + q->k0 * (x - q->x0) + q->f0;
+{unused}
+    return {model.force};
 }}
 
-/* d force / d (hysteresis state) */
-static void {p}_force_gradient(const {p}_params *q, const double *s, double x,
+/* d force / d (hysteresis state), as forward-mode differentiation computes it. */
+static void $p_force_gradient(const $p_params *q, const double *s, double x,
                                double v, double *g)
 {{
-    (void)s;
-    (void)x;
-    (void)v;
-    g[0] = q->alpha;
+{unused}
+    (void)g;
+{model.gradient}
 }}
-
-/* BoucWen.state_bounds: z0 where beta + gamma > 0, else no bound. */
-static void {p}_bounds(const {p}_params *q, double *b)
+{bounds}
+/* {name}.yield_force [N or N m] */
+static double $p_yield_force(const $p_params *q)
 {{
-    int bounded = q->beta + q->gamma > 0.0;
-    double safe = bounded ? q->beta + q->gamma : 1.0;
-    double z0 = pow(q->A / safe, 1.0 / q->n);
-    b[0] = bounded ? z0 : INFINITY;
-}}
-
-/* BoucWen.yield_force [N or N m] */
-static double {p}_yield_force(const {p}_params *q)
-{{
-    double b[1];
-    {p}_bounds(q, b);
-    return fabs(q->alpha) * (isfinite(b[0]) ? b[0] : 1.0);
+{yield_bounds}    return {model.yield_force};
 }}
 """
-            )
-        return (
-            common
-            + f"""
-/* Spencer's z0 = (A / (beta + gamma))^(1/n). */
-static double {p}_z0(const {p}_params *q)
-{{
-    return pow(q->A / (q->beta + q->gamma), 1.0 / q->n);
-}}
-
-/* The internal displacement's rate [m/s]. */
-static double {p}_y_rate(const {p}_params *q, double z, double y, double x, double v)
-{{
-    return (q->alpha * z + q->c0 * v + q->k0 * (x - y)) / (q->c0 + q->c1);
-}}
-
-/* Spencer.rates: z seen clipped to 1e3 z0, as jaxmr's rates see it. */
-static void {p}_hysteresis_rates(const {p}_params *q, const double *s, double x,
-                                 double v, double *ds)
-{{
-    double z0 = {p}_z0(q);
-    double z_max = (isfinite(z0) && z0 > 0.0) ? 1000.0 * z0 : INFINITY;
-    double z = clip(s[0], -z_max, z_max);
-    double y_rate = {p}_y_rate(q, z, s[1], x, v);
-    ds[0] = bouc_wen_rate(z, v - y_rate, q->A, q->beta, q->gamma, q->n);
-    ds[1] = y_rate;
-}}
-
-/* Spencer.force [N] */
-static double {p}_hysteresis_force(const {p}_params *q, const double *s, double x,
-                                   double v)
-{{
-    return q->c1 * {p}_y_rate(q, s[0], s[1], x, v) + q->k1 * (x - q->x0);
-}}
-
-/* d force / d (z, y), as forward-mode differentiation computes it. */
-static void {p}_force_gradient(const {p}_params *q, const double *s, double x,
-                               double v, double *g)
-{{
-    (void)s;
-    (void)x;
-    (void)v;
-    g[0] = q->c1 * (q->alpha / (q->c0 + q->c1));
-    g[1] = q->c1 * (-q->k0 / (q->c0 + q->c1));
-}}
-
-/* Spencer.state_bounds */
-static void {p}_bounds(const {p}_params *q, double *b)
-{{
-    b[0] = {p}_z0(q);
-    b[1] = INFINITY;
-}}
-
-/* Spencer.yield_force [N] */
-static double {p}_yield_force(const {p}_params *q)
-{{
-    return q->alpha * {p}_z0(q);
-}}
-"""
-        )
+        return code.replace("$p", p)
 
     def initial_state(self, s: str, x: str, command: str) -> str:
         """C statements: `s` (an array) the virgin state at deflection `x`, the
         current dynamics settled at `command` (`Damper.initial_state`)."""
-        lines = [f"{s}[0] = 0.0;"]
-        if self.kind is Spencer:
-            lines.append(f"{s}[1] = {x};")  # y starts at x: the device at rest
+        initial = self.model.initial or ("0.0",) * self.nh
+        lines = [f"{s}[{i}] = {e.replace('$x', x)};" for i, e in enumerate(initial)]
         if self.ns > self.nh:
             lines.append(f"{s}[{self.nh}] = {command};")
-        return "\n".join(lines)
+        return "\n".join(lines) or "(void)x;"
 
     def dynamics(self) -> str:
         p, k = self.prefix, self.nh

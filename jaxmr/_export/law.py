@@ -7,13 +7,24 @@ import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
-from .._control import ForceFeedback, OnOffSkyhook, Skyhook
+from .._control import (
+    ContinuousClippedOptimal,
+    ForceFeedback,
+    Groundhook,
+    Hybrid,
+    OnOffSkyhook,
+    Skyhook,
+)
 from .._control.feedback import _LinearAndMLP
+from .._control.state_space import QUARTER_CAR_STATE
 from .._damper import Damper
 from .damper import unsupported
 from .syntax import literal
 
-SUPPORTED = "Skyhook, OnOffSkyhook, ForceFeedback (linear, or linear + MLP)"
+SUPPORTED = (
+    "Skyhook, OnOffSkyhook, Groundhook, Hybrid, ContinuousClippedOptimal, "
+    "ForceFeedback (linear, or linear + MLP)"
+)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -168,38 +179,101 @@ static double network(const double *phi)
 """
 
 
-def law_c(law) -> LawC:
-    """The C of `law` (a `Skyhook`, `OnOffSkyhook` or `ForceFeedback`)."""
-    kind = type(law)
-    i_max = literal(law.i_max)
-    if kind is Skyhook:
-        code = (
-            _command_for_force(law, "inverse")
-            + f"""
-/* Skyhook: the force c_sky * body_velocity through the inverse model. */
+def _gate(a: str, b: str, t: float) -> str:
+    """`smooth.gate(a b, angular_switch(a, b), T)` on the C expressions `a`, `b` (one
+    unit): H(a b) (H(0) = 1) at T = 0, else sigmoid(angular_switch(a, b) / T)."""
+    if t == 0:
+        return f"({a} * {b} >= 0.0 ? 1.0 : 0.0)"
+    return f"sigmoid(angular_switch({a}, {b}) / {literal(t)})"
+
+
+def _force_law(law, what: str, target: str, reads, model=None, code="") -> LawC:
+    """A law that asks for a force `target` [N] (C statements setting `double
+    target` from the readings `r`) and commands the current for it through the
+    inverse model: `clip(command_for_force(plant, target, i_max, T), 0, i_max)`."""
+    return LawC(
+        tuple(reads),
+        True,
+        model,
+        code
+        + _command_for_force(law, "inverse")
+        + f"""
+/* {what}, through the inverse model. */
 static double law_command(const readings *r, const observer *o)
 {{
-    return clip(command_for_force(o, {literal(law.c_sky)} * r->body_velocity), 0.0,
-                {i_max});
+    double target;
+{target}
+    return clip(command_for_force(o, target), 0.0, {literal(law.i_max)});
 }}
-"""
+""",
+    )
+
+
+def _gain_row(law) -> np.ndarray:
+    gain = np.asarray(law.gain)
+    if gain.shape != (len(QUARTER_CAR_STATE),):
+        raise NotImplementedError(
+            f"export_c: {type(law).__name__}.gain must have shape (4,), got "
+            f"{gain.shape} (a batch of laws exports one at a time)."
         )
-        return LawC(("body_velocity",), True, None, code)
+    return gain
+
+
+def law_c(law) -> LawC:
+    """The C of `law` (one of `SUPPORTED`)."""
+    kind = type(law)
+    if kind is Skyhook:
+        return _force_law(
+            law,
+            "Skyhook: F* = c_sky body_velocity",
+            f"    target = {literal(law.c_sky)} * r->body_velocity;",
+            ("body_velocity",),
+        )
+    if kind is Groundhook:
+        # -c_gnd as JAX negates it before the product (a sign flip, exact).
+        return _force_law(
+            law,
+            "Groundhook: F* = -c_gnd wheel_velocity",
+            f"    target = {literal(-np.asarray(law.c_gnd))} * r->wheel_velocity;",
+            ("wheel_velocity",),
+        )
+    if kind is Hybrid:
+        t = _temperature(law)
+        alpha = np.asarray(law.alpha)
+        target = f"""\
+    double v = r->damper_velocity, body = r->body_velocity;
+    double wheel = -r->wheel_velocity;
+    double sky = body * {_gate("body", "v", t)};
+    double ground = wheel * {_gate("wheel", "v", t)};
+    target = {literal(law.gain)} * ({literal(alpha)} * sky + {literal(1 - alpha)}
+                                    * ground);"""
+        return _force_law(
+            law,
+            f"Hybrid at temperature {t!r}: F* = G [alpha sky + (1 - alpha) ground]",
+            target,
+            ("body_velocity", "wheel_velocity", "damper_velocity"),
+        )
+    if kind is ContinuousClippedOptimal:
+        gain = _gain_row(law)
+        terms = "\n                + ".join(
+            f"{literal(k)} * r->{name}" for k, name in zip(gain, QUARTER_CAR_STATE)
+        )
+        return _force_law(
+            law,
+            "ContinuousClippedOptimal: F* = -K x",
+            f"    target = -({terms});",
+            QUARTER_CAR_STATE,
+        )
     if kind is OnOffSkyhook:
         t = _temperature(law)
-        on = (
-            "(s >= 0.0 ? 1.0 : 0.0)"
-            if t == 0
-            else f"sigmoid(angular_switch(body, v) / {literal(t)})"
-        )
         code = f"""
 /* OnOffSkyhook at temperature {t!r}. */
 static double law_command(const readings *r, const observer *o)
 {{
-    double body = r->body_velocity, v = r->damper_velocity, s = body * v;
+    double body = r->body_velocity, v = r->damper_velocity;
     (void)o;
-    (void)s;
-    return clip({i_max} * {on}, 0.0, {i_max});
+    return clip({literal(law.i_max)} * {_gate("body", "v", t)}, 0.0,
+                {literal(law.i_max)});
 }}
 """
         return LawC(("body_velocity", "damper_velocity"), False, None, code)
@@ -210,21 +284,17 @@ static double law_command(const readings *r, const observer *o)
             f"    phi[{k}] = r->{name} / {literal(scales[k])};"
             for k, name in enumerate(features)
         )
-        inverse = "inverse"
-        code = (
-            _network_c(law.network, len(features))
-            + _command_for_force(law, inverse)
-            + f"""
-/* ForceFeedback: F* = F_y g(m / s) through the inverse model. */
-static double law_command(const readings *r, const observer *o)
-{{
+        target = f"""\
     double phi[{len(features)}];
-    {inverse}_params q = {inverse}_at({i_max});
+    inverse_params q = inverse_at({literal(law.i_max)});
 {phi}
-    return clip(command_for_force(o, {inverse}_yield_force(&q) * network(phi)), 0.0,
-                {i_max});
-}}
-"""
+    target = inverse_yield_force(&q) * network(phi);"""
+        return _force_law(
+            law,
+            "ForceFeedback: F* = F_y g(m / s)",
+            target,
+            features,
+            law.model,
+            _network_c(law.network, len(features)),
         )
-        return LawC(tuple(features), True, law.model, code)
     raise unsupported("the law", law, SUPPORTED)
