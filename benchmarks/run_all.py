@@ -109,6 +109,7 @@ BENCHMARKS = (
     Benchmark("realistic_control", "realistic_control.py"),
     Benchmark("export_c", "export_c.py"),
     Benchmark("held_out_currents", "held_out_currents.py"),
+    Benchmark("screening_choice", "screening_choice.py"),
     Benchmark(
         "fit_each_scaling",
         "fit_each_scaling.py",

@@ -37,7 +37,8 @@ Approximation: a finalist's full fit starts from its screening fit; the replay u
 the full fits that started from the default budget's screening, for every budget.
 
 One process per dataset (a long process compiling hundreds of fits can exhaust the
-memory maps):
+memory maps): `python benchmarks/screening_choice.py --json OUT` runs each dataset in
+its own process and then the analysis; by hand:
 
     for d in utfsm nees sim_spencer_1997 sim_passenger_car_mr_damper \\
              sim_review_quarter_car_damper sim_utfsm_spencer sim_sas_brake_dahl; do
@@ -54,6 +55,9 @@ import argparse
 import itertools
 import json
 import os
+import subprocess
+import sys
+import tempfile
 import threading
 import time
 from pathlib import Path
@@ -356,7 +360,11 @@ def analyse(results: dict) -> dict:
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--json", type=Path, help="write the figures here")
-    parser.add_argument("--dataset", help="one dataset of _generalisation_data")
+    parser.add_argument(
+        "--dataset",
+        help="one dataset of _generalisation_data (default: every one, each in its "
+        "own process, then the analysis)",
+    )
     parser.add_argument("--max-steps", type=int, default=100)
     parser.add_argument(
         "--plain", type=Path, help="a generalisation.py JSON (the plain fits)"
@@ -370,6 +378,25 @@ def main():
             results.update(json.loads(path.read_text())["datasets"])
         figures = {"datasets": results, **analyse(results)}
         write_figures(figures, args.json)
+        return
+    if args.dataset is None:  # every dataset, each in its own process, then analyse
+        every = ["utfsm", "nees"] + [f"sim_{p.name}" for p in gd.SIMULATED]
+        if args.quick:
+            every = every[-1:]
+        plain = args.plain or Path(__file__).resolve().parent / "results" / (
+            "generalisation.json"
+        )
+        parts = []
+        with tempfile.TemporaryDirectory() as folder:
+            for name in every:
+                part = Path(folder) / f"{name}.json"
+                command = [sys.executable, __file__, "--dataset", name]
+                command += ["--max-steps", str(args.max_steps), "--plain", str(plain)]
+                command += ["--json", str(part)] + (["--quick"] if args.quick else [])
+                subprocess.run(command, check=True)
+                parts.append(json.loads(part.read_text())["datasets"])
+        results = {k: v for part in parts for k, v in part.items()}
+        write_figures({"datasets": results, **analyse(results)}, args.json)
         return
     if args.quick:
         global BUDGETS

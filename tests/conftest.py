@@ -14,13 +14,18 @@ import os
 import shutil
 import tempfile
 
+import pytest
+
 _OWN_CACHE = "JAX_COMPILATION_CACHE_DIR" not in os.environ
 if _OWN_CACHE:
     os.environ["JAX_COMPILATION_CACHE_DIR"] = tempfile.mkdtemp(
         prefix="jaxmr-tests-xla-"
     )
-    # Programs that take half a second to compile are worth a file (default: 1 s).
-    os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0.5")
+    # Every program gets a file (default: those over 1 s), as the command line's cache
+    # does: the processes share thousands of small ones (an eager operation, a short
+    # simulation) at ~50 ms each to compile and a few ms to read; with them in the
+    # cache a second run of tests/test_models.py took 42 s instead of 59 s.
+    os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0")
 
 import jax  # noqa: E402 - after the environment above, which jax reads on import
 
@@ -48,29 +53,50 @@ def pytest_unconfigure(config):
         shutil.rmtree(os.environ["JAX_COMPILATION_CACHE_DIR"], ignore_errors=True)
 
 
-# Longest first (about a minute or more each), so that under `pytest -n 2` they start
-# early and the short tests fill in around them; with `--maxschedchunk=2`
-# (pyproject.toml) xdist hands tests out two at a time, so the long ones alternate
-# between the workers instead of all landing in the first worker's initial chunk.
+# Under `pytest -n 2` (pyproject.toml: `--dist loadgroup --no-loadscope-reorder`)
+# xdist hands out the tests in this order, each worker holding at most three: the
+# longest first (about half a minute or more each), so that they start early and the
+# short tests fill in around them.
 _SLOW_FIRST = (
     "test_two_processes_equal_one",
-    "02_",
     "06_",
+    "02_",
     "04_",
-    "07_",
-    "05_",
+    "control.md",
+    "test_host_devices",
     "01_",
+    "05_",
+    "07_",
     "03_",
-    "08_controller_to_c",
-    "test_brake_parameters_identified_from_a_free_decay",
+    "your-rigs-data.md",
+    "08_",
+)
+# Modules whose module-scoped fixtures take seconds (a tuning run, a fit through the
+# command line, simulated data): each runs whole on one worker, which builds each
+# fixture once (split over both workers, the tuning fixture alone was built twice, 35 s
+# each). Handed out after the longest single tests, the largest first.
+_ONE_WORKER = (
+    "test_select.py",
+    "test_tune_sensors.py",
+    "test_cli_fit.py",
+    "test_identify_engine.py",
+    "test_sas_rig.py",
+    "test_magnetic.py",
+    "test_observer.py",
+    "test_uncertainty.py",
 )
 
 
+@pytest.hookimpl(tryfirst=True)  # before xdist reads the groups
 def pytest_collection_modifyitems(config, items):
     def rank(item):
-        for k, part in enumerate(_SLOW_FIRST):
+        for k, part in enumerate(_SLOW_FIRST + _ONE_WORKER):
             if part in item.nodeid:
                 return k
-        return len(_SLOW_FIRST)
+        return len(_SLOW_FIRST) + len(_ONE_WORKER)
 
+    for item in items:
+        module = item.nodeid.split("::")[0].rsplit("/", 1)[-1]
+        if module in _ONE_WORKER:
+            item.add_marker(pytest.mark.xdist_group(module))
     items.sort(key=rank)  # stable: the rest keep their order

@@ -23,13 +23,19 @@ def cases():
     import jaxmr
     from tests.helpers import dahl_guess, dahl_runs
 
-    # Sizes for compile time (one RK4 step per control sample, short runs): the
-    # comparison is of layouts, not of physics.
+    # Sizes for compile time (fixed RK4 steps, adaptive ones compile 2-3x longer;
+    # one per control sample; short runs): the comparison is of layouts, not physics.
     out = {}
     # A state that depends on the current (a coil lag): one solve per run.
     damper = jaxmr.Damper(jaxmr.sas_brake_bouc_wen(), jaxmr.FirstOrderLag(50.0))
     ts = jnp.linspace(0.0, 0.2, 41)
-    sol = jaxmr.sweep(damper, jaxmr.Sine(0.05, 2.0), [0.0, 0.5, 1.0], ts)
+    sol = jaxmr.sweep(
+        damper,
+        jaxmr.Sine(0.05, 2.0),
+        [0.0, 0.5, 1.0],
+        ts,
+        integrator=jaxmr.FixedStep(2),
+    )
     out["sweep_force"] = np.asarray(sol.force)
     results = jaxmr.fit_each(
         dahl_guess(), dahl_runs((3.0, 5.0, 8.0), (1.0, 2.0, 3.0)), progress=False,
