@@ -1,5 +1,6 @@
-"""Running a benchmark's measurement in N local processes with `jax.distributed`
-(CPU, gloo collectives, one device per process): the launcher and the worker's start.
+"""Running a benchmark's measurement in fresh processes: N local processes with
+`jax.distributed` (CPU, gloo collectives, one device per process), the launcher and
+the worker's start; and `jaxmr fit` as a user runs it (`fit_command`).
 
 A benchmark script that supports `--processes N` re-runs itself as N workers
 (`--worker K --port P --out FILE`); process 0 saves its figures to FILE (.npz)."""
@@ -9,6 +10,28 @@ import re
 import socket
 import subprocess
 import sys
+import time
+
+
+def fit_command(files, out, *options, quiet: bool = True) -> float:
+    """`jaxmr fit --out OUT [options] FILES` (default: auto) in a fresh process, its
+    output shown unless `quiet`; its wall time [s]."""
+    start = time.perf_counter()
+    subprocess.run(
+        [
+            sys.executable,
+            "-c",
+            "import sys, jaxmr._cli; sys.exit(jaxmr._cli.main())",
+            "fit",
+            "--out",
+            str(out),
+            *options,
+            *map(str, files),
+        ],
+        check=True,
+        stdout=subprocess.DEVNULL if quiet else None,
+    )
+    return time.perf_counter() - start
 
 
 def free_port() -> int:

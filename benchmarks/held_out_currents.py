@@ -26,13 +26,11 @@ score; the unseen-data evidence is generalisation.py's left-out datasets.
 
 import argparse
 import json
-import subprocess
-import sys
 import tempfile
-import time
 from pathlib import Path
 
 import numpy as np
+from _processes import fit_command
 from _report import write_figures
 
 import jaxmr
@@ -61,20 +59,7 @@ def main():
             if level in TRAIN_CURRENTS
         ]
         out = Path(folder) / "fit.json"
-        start = time.perf_counter()
-        subprocess.run(
-            [
-                sys.executable,
-                "-c",
-                "import sys, jaxmr._cli; sys.exit(jaxmr._cli.main())",
-                "fit",
-                "--out",
-                str(out),
-                *map(str, train_files),
-            ],
-            check=True,
-        )
-        seconds = time.perf_counter() - start
+        seconds = fit_command(train_files, out, quiet=False)
         model = jaxmr.load_model(out)
         report = json.loads(out.read_text())["report"]
     fitted = np.asarray(

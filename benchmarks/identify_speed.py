@@ -56,8 +56,6 @@ of 3x). Reads the data from ../shared/data beside the repository.
 import argparse
 import json
 import statistics
-import subprocess
-import sys
 import tempfile
 import time
 from pathlib import Path
@@ -73,6 +71,7 @@ from _fit_baselines import (
     speedups,
     timed_figures,
 )
+from _processes import fit_command
 from _report import write_figures
 
 import jaxmr
@@ -109,27 +108,6 @@ BOUCWEN = ROOT.parent / "shared" / "data" / "boucwen_benchmark"
 TEMPLATE = "shear_thinning_spencer"
 # Every how manieth record `--quick` keeps (6 of the 30, at every current).
 QUICK_STRIDE = 5
-
-
-def _fit_command(files, out, *options):
-    """`jaxmr fit --out OUT [options] FILES` (default: auto) in a fresh process; its
-    seconds."""
-    start = time.perf_counter()
-    subprocess.run(
-        [
-            sys.executable,
-            "-c",
-            "import sys, jaxmr._cli; sys.exit(jaxmr._cli.main())",
-            "fit",
-            "--out",
-            str(out),
-            *options,
-            *map(str, files),
-        ],
-        check=True,
-        stdout=subprocess.DEVNULL,
-    )
-    return time.perf_counter() - start
 
 
 def _timed(function, repeats=3):
@@ -347,7 +325,7 @@ def auto(experiments, discard, smoothing):
     with tempfile.TemporaryDirectory() as folder:
         files = jd.convert_dataset("utfsm", UTFSM, Path(folder) / "csv")
         out = Path(folder) / "auto.json"
-        seconds = _fit_command(files, out, "--compilation-cache", "off")
+        seconds = fit_command(files, out, "--compilation-cache", "off")
         model = jaxmr.load_model(out)
         report = json.loads(out.read_text())["report"]
     scores = jaxmr.record_nrmse(
@@ -376,12 +354,12 @@ def nees():
         path = Path(folder) / "ranran_50_first_two_thirds.csv"
         jd.write_csv(record.window(None, t[0] + split), path, discard=0.2)
         out = Path(folder) / "nees.json"
-        seconds = _fit_command([path], out, "--compilation-cache", "off")
+        seconds = fit_command([path], out, "--compilation-cache", "off")
         model = jaxmr.load_model(out)
         report = json.loads(out.read_text())["report"]
         # The same with the force channel's delay fitted too (`--channel-delay`).
         out = Path(folder) / "nees_delay.json"
-        delay_seconds = _fit_command(
+        delay_seconds = fit_command(
             [path], out, "--channel-delay", "--compilation-cache", "off"
         )
         delayed = jaxmr.load_model(out)
