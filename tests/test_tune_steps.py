@@ -42,8 +42,14 @@ def test_default_steps_are_unchanged_where_the_damper_is_not_stiff():
     assert chosen.integrator == jaxmr.FixedStep() == given.integrator
     assert chosen.history == given.history and chosen.loss == given.loss
     assert float(chosen.values[0]) == float(given.values[0])
-    # `evaluate` chooses the same way: the tuned loss, evaluated again.
-    scores = jaxmr.evaluate(CAR, chosen.controller, TRAIN, T, sensors="oracle")
+    # `evaluate` chooses the same way: the tuned loss, evaluated again. Its damper
+    # holds a fitted range of ±1 mm/s (it changes no result): the roads drive it far
+    # beyond, and `evaluate` warns once, from its own runs.
+    narrow = jaxmr.FittedRange((-0.05, 0.05), (-1e-3, 1e-3), (0.0, 2.5))
+    ranged = jaxmr.with_fitted_range(CAR, narrow)
+    with pytest.warns(jaxmr.OutsideFittedRange, match="^evaluate drove .* m/s") as w:
+        scores = jaxmr.evaluate(ranged, chosen.controller, TRAIN, T, sensors="oracle")
+    assert len(w) == 1
     scores = scores["comfort"]
     assert float(np.mean(scores)) == pytest.approx(chosen.loss, rel=1e-10)
 
@@ -62,6 +68,10 @@ def test_a_stiff_damper_gets_enough_substeps_and_a_too_long_step_says_so():
         STIFF, FAR, road, T, integrator=result.integrator, sensors="oracle"
     )
     assert float(scores["comfort"][0]) == pytest.approx(result.loss, rel=1e-10)
+    # `evaluate` with no `integrator` chooses from its own (vmapped) runs the
+    # substeps `random_search` chose from each road run alone: the same score.
+    chosen = jaxmr.evaluate(STIFF, FAR, road, T, sensors="oracle")
+    assert float(chosen["comfort"][0]) == pytest.approx(result.loss, rel=1e-10)
     advice = r"pass `integrator=jaxmr.FixedStep\(substeps=16\)` or more, or no"
     with pytest.raises(ValueError, match=r"random_search: every parameter .*" + advice):
         jaxmr.random_search(

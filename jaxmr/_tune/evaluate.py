@@ -10,6 +10,8 @@ import numpy as np
 from .._closed_loop import (
     Sampling,
     SystemSolution,
+    _damper_stiffness,
+    choose_substeps,
     loop_settings,
     simulate_system,
     step_advice,
@@ -21,7 +23,7 @@ from .._integrate import FixedStep
 from .._solution import RESULTS
 from .._systems.base import AbstractSystem
 from .batch import ROADS_EXAMPLE, batch_size
-from .common import choose_integrator, chooses_steps, own_sampling, sensor_noise
+from .common import chooses_steps, own_sampling, sensor_noise
 from .loss import comfort, sensing
 
 
@@ -56,31 +58,53 @@ def evaluate(
     sampling, integrator = loop_settings("evaluate", sampling, integrator, deprecated)
     noise = sensor_noise(sensors, sensor_key, "evaluate")
     metrics = {"comfort": comfort} if metrics is None else dict(metrics)
-    integrator = choose_integrator(
-        "evaluate", integrator, chosen, (system, controller), None, roads, duration,
-        sampling, noise,
-    )  # fmt: skip
     # The roads, each with its index (its noise), spread over every device of every
     # process (padded to a whole number per device); every process gets every
     # road's values.
     n = batch_size(roads, "roads", ROADS_EXAMPLE)
     mesh = batch_mesh()
     runs = spread(pad((roads, jnp.arange(n)), n, padded_size(n, mesh)), mesh)
-    values, result = _evaluate(
-        system,
-        controller,
-        runs,
-        duration,
-        tuple(metrics.items()),
-        sampling,
-        integrator,
-        noise,
-    )
-    result = jax.tree.map(lambda code: jnp.asarray(to_host(code)[:n]), result)
+
+    def run(integrator):
+        out = _evaluate(
+            system,
+            controller,
+            runs,
+            duration,
+            tuple(metrics.items()),
+            sampling,
+            integrator,
+            noise,
+            chosen,
+        )
+        return jax.tree.map(lambda a: np.asarray(to_host(a))[:n], out)
+
+    if chosen:
+        # The substeps `simulate_system` with no `integrator` chooses, for the
+        # stiffest road, from the batch's own runs (read off the vmapped runs
+        # rather than each road run again alone first).
+        values, result, seen = choose_substeps(
+            run,
+            lambda out: bool(np.any(out[1] == RESULTS.nonfinite)),
+            lambda out: float(np.max(out[2]["stiffness"], initial=0.0)),
+            sampling.dt,
+            integrator,
+            run(integrator),
+        )[0]
+        fitted_range = system.damper.hysteresis.fitted_range
+        if fitted_range is not None:
+            fitted_range.warn(
+                "evaluate",
+                np.ravel(seen["damper_displacement"]),
+                np.ravel(seen["damper_velocity"]),
+                np.ravel(seen["current"]),
+            )
+    else:
+        values, result, _ = run(integrator)
     failed = np.flatnonzero(~np.asarray(result == RESULTS.successful))
     if failed.size:
         k = int(failed[0])
-        first = jax.tree.map(lambda code: code[k], result)
+        first = jax.tree.map(lambda code: jnp.asarray(code[k]), result)
         if bool(first == RESULTS.nonfinite):
             raise eqx.EquinoxRuntimeError(
                 f"evaluate: the run on road {k} diverged (inf or nan): "
@@ -89,13 +113,26 @@ def evaluate(
         # Any other failure (a command outside the controller's range) raises its
         # own message, as the run would alone.
         first.error_if(jnp.zeros(()), jnp.asarray(True))
-    return {name: to_host(value)[:n] for name, value in values.items()}
+    return values
 
 
 @eqx.filter_jit
 def _evaluate(
-    system, controller, runs, duration, metrics: Sequence, sampling, integrator, noise
+    system,
+    controller,
+    runs,
+    duration,
+    metrics: Sequence,
+    sampling,
+    integrator,
+    noise,
+    steps: bool,
 ):
+    """Every metric of every run, the runs' results and (`steps`, when the
+    substeps are being chosen) what choosing them reads: each run's damper
+    stiffness [1/s] and the extremes of the damper's motion and input (for the
+    fitted-range warning)."""
+
     def one(run):
         road, index = run
         sol = simulate_system(
@@ -108,6 +145,16 @@ def _evaluate(
             throw=False,  # `evaluate` raises, saying what to change
             **sensing(noise, index),
         )
-        return {name: fn(sol) for name, fn in metrics}, sol.result
+        seen = {}
+        if steps:
+            seen["stiffness"] = _damper_stiffness(system, road, sol)
+            for name, value in (
+                ("damper_displacement", sol.outputs["damper_displacement"]),
+                ("damper_velocity", sol.outputs["damper_velocity"]),
+                ("current", sol.current),
+            ):
+                # The extremes of the finite samples (a diverged run's tail is nan).
+                seen[name] = jnp.stack([jnp.nanmin(value), jnp.nanmax(value)])
+        return {name: fn(sol) for name, fn in metrics}, sol.result, seen
 
     return eqx.filter_vmap(one)(runs)
