@@ -4,6 +4,7 @@ the system C compiler, gives the JAX controller's commands on the same measureme
 `jaxmr.export_stablehlo` writes gives them too; neither overwrites a file."""
 
 import sys
+from collections.abc import Callable
 from pathlib import Path
 
 import equinox as eqx
@@ -50,8 +51,9 @@ _UNREAD = jaxmr.DamperPlant(
 
 @eqx.filter_jit
 def _replay(controller, names, inputs):
-    """The JAX controller's commands [A] on the rows of `inputs` (its `init` at the
-    first, then one call per row), as `simulate_system` runs it."""
+    """The JAX controller's state after the last row of `inputs` and its commands [A]
+    on the rows (its `init` at the first, then one call per row), as
+    `simulate_system` runs it."""
 
     def measurement(row):
         return {n: row[i] for i, n in enumerate(names)}
@@ -60,7 +62,34 @@ def _replay(controller, names, inputs):
         command, state = controller(measurement(row), state, _UNREAD)
         return state, command
 
-    return jax.lax.scan(one, controller.init(measurement(inputs[0])), inputs)[1]
+    return jax.lax.scan(one, controller.init(measurement(inputs[0])), inputs)
+
+
+class _Margin(jaxmr.AbstractController):
+    """A stateless on/off `law`'s commands; its state the smallest |ŝ| so far, with
+    the angular switching function ŝ = 2ab / (a² + b²) of the law's factors (a, b) =
+    `factors(law, readings)` (dimensionless, in [0, 1]): how near its decisions came
+    to its switch ab = 0. A factor exactly 0 counts as far (inf): H(0) = 1 is then
+    exact arithmetic in C and JAX alike (the estimator's velocities are 0 at the
+    first sample)."""
+
+    law: jaxmr.AbstractController
+    factors: Callable = eqx.field(static=True)
+
+    @property
+    def i_max(self):
+        return self.law.i_max
+
+    def init(self, measurement):
+        return jnp.asarray(jnp.inf)
+
+    def __call__(self, measurement, state, plant):
+        command, _ = self.law(measurement, (), plant)
+        a, b = self.factors(self.law, measurement)
+        product = a * b
+        s_hat = 2 * product / jnp.where(product == 0, 1.0, a**2 + b**2)
+        margin = jnp.where(product == 0, jnp.inf, jnp.abs(s_hat))
+        return command, jnp.minimum(state, margin)
 
 
 def _compiled(controller, folder, name, names):
@@ -136,7 +165,7 @@ def test_the_c_controller_gives_the_jax_commands_on_recorded_readings(
 ):
     names, inputs, sol, *_ = recorded
     c = _compiled(skyhook, tmp_path, "skyhook", names)
-    ours = np.asarray(_replay(skyhook, names, jnp.asarray(inputs)))
+    ours = np.asarray(_replay(skyhook, names, jnp.asarray(inputs))[1])
     # The replay is the closed loop's controller: its commands are the run's.
     np.testing.assert_allclose(ours, np.asarray(sol.command), rtol=0, atol=1e-12)
     assert np.ptp(ours) > 0.25  # the law acts (a third of its range: measured 0.34)
@@ -214,12 +243,41 @@ def _rich_law(features, model=None):
     return eqx.tree_at(lambda f: f.network, law, network)
 
 
+# The measured quarter-car state [m, m/s] of the full-state laws.
+_STATE = ("body_position", "body_velocity", "wheel_position", "wheel_velocity")
+_GAIN = jnp.array([4e4, 6000.0, -2e4, -1500.0])  # [N/m, N s/m, N/m, N s/m]
+
+
+def _groundhook_factors(law, r):
+    """OnOffGroundhook's switch: -wheel_velocity and damper_velocity [m/s]."""
+    return -r["wheel_velocity"], r["damper_velocity"]
+
+
+def _clipped_factors(law, r):
+    """ClippedOptimal's switch: the lag f_c - f and the force f [N]."""
+    force = r["damper_force"]
+    return -(law.gain @ jnp.stack([r[n] for n in _STATE])) - force, force
+
+
 @pytest.mark.parametrize(
     "case",
-    ["mlp", "spencer", "on-off", "groundhook-dahl", "hybrid-lugre", "clipped-bingham"],
+    [
+        "mlp",
+        "spencer",
+        "on-off",
+        "groundhook-dahl",
+        "hybrid-lugre",
+        "clipped-bingham",
+        "on-off-groundhook",
+        "clipped-on-off",
+        "clipped-normalized",
+        "skyhook-shear-thinning",
+        "hybrid-bwbn",
+    ],
 )
 def test_the_c_controller_gives_the_jax_commands(tmp_path, case):
     car_sensors = ("body_acceleration", "damper_displacement", "wheel_acceleration")
+    factors = None  # a hard on/off law's switch, for its margin
     if case == "mlp":
         # The 84-weight law, inverting its own model (a stiffer unit of the same
         # family, other current laws) at the state of an observer corrected by a
@@ -293,19 +351,85 @@ def test_the_c_controller_gives_the_jax_commands(tmp_path, case):
             velocity_scale=0.01,
         )
         controller = jaxmr.ObserverBasedController(
-            jaxmr.ContinuousClippedOptimal(
-                jnp.array([4e4, 6000.0, -2e4, -1500.0]), 1.0, temperature=0.1
-            ),
+            jaxmr.ContinuousClippedOptimal(_GAIN, 1.0, temperature=0.1),
             observer=jaxmr.DamperObserver(bingham),
         )
-        names = (
-            "body_position",
-            "body_velocity",
-            "wheel_position",
-            "wheel_velocity",
-            "damper_displacement",
-            "damper_velocity",
+        names = _STATE + ("damper_displacement", "damper_velocity")
+    elif case == "on-off-groundhook":
+        # The hard on/off groundhook on the estimated velocities.
+        controller = jaxmr.ObserverBasedController(
+            jaxmr.OnOffGroundhook(1.0), estimator=jaxmr.VelocityEstimator()
         )
+        names = car_sensors
+        factors = _groundhook_factors
+    elif case == "clipped-on-off":
+        # The hard on/off clipped-optimal law on the measured state and force.
+        controller = jaxmr.ObserverBasedController(jaxmr.ClippedOptimal(_GAIN, 1.0))
+        names = _STATE + ("damper_force",)
+        factors = _clipped_factors
+    elif case == "clipped-normalized":
+        # Relaxed clipped-optimal without a load cell: it reads the force of the
+        # observer's normalised Bouc-Wen model (the observer run open-loop).
+        normalized = jaxmr.NormalizedBoucWen(
+            kappa_x=1000.0,
+            kappa_w=jaxmr.LinearLaw(100.0, 500.0),
+            c0=jaxmr.LinearLaw(900.0, 1500.0),
+            rho=1000.0,
+            sigma=0.3,
+            n=1.5,
+            x0=1e-3,
+            f0=20.0,
+        )
+        controller = jaxmr.ObserverBasedController(
+            jaxmr.ClippedOptimal(_GAIN, 1.0, temperature=0.1),
+            observer=jaxmr.DamperObserver(normalized),
+        )
+        names = _STATE + ("damper_displacement", "damper_velocity")
+    elif case == "skyhook-shear-thinning":
+        # Relaxed skyhook on Spencer's voltage-driven damper with thinning dashpots
+        # (c0 halved at 0.2 m/s, c1 at 0.5 m/s), load cell; 16 substeps as for
+        # Spencer's (above).
+        spencer = jaxmr.spencer_1997()
+        fields = ("alpha", "c0", "k0", "c1", "k1", "x0", "gamma", "beta", "A", "n")
+        thinning = jaxmr.ShearThinningSpencer(
+            **{f: getattr(spencer.hysteresis, f) for f in fields}, e0=5.0, e1=2.0
+        )
+        controller = jaxmr.ObserverBasedController(
+            jaxmr.Skyhook(1500.0, 2.25, temperature=0.1),
+            estimator=jaxmr.VelocityEstimator(),
+            observer=jaxmr.DamperObserver(
+                jaxmr.Damper(thinning, spencer.dynamics), gain=0.3, substeps=16
+            ),
+        )
+        names = car_sensors + ("damper_force",)
+    elif case == "hybrid-bwbn":
+        # Relaxed hybrid on a Bouc-Wen-Baber-Noori damper that pinches and degrades
+        # within the run (its energy state reaches some 6e-4 m^2 in size), load cell.
+        bwbn = jaxmr.BoucWenBaberNoori(
+            k=jaxmr.LinearLaw(1e5, 5e5),
+            alpha=0.05,
+            c=jaxmr.LinearLaw(800.0, 1500.0),
+            A0=1.0,
+            beta=4e5,
+            gamma=6e5,
+            n=2.0,
+            f0=10.0,
+            delta_nu=500.0,
+            delta_eta=300.0,
+            delta_A=200.0,
+            zeta_s=0.5,
+            p=1e3,
+            q=0.1,
+            psi=5e-4,
+            delta_psi=0.5,
+            lam=0.5,
+        )
+        controller = jaxmr.ObserverBasedController(
+            jaxmr.Hybrid(6000.0, 0.6, 1.0, temperature=0.1),
+            estimator=jaxmr.VelocityEstimator(),
+            observer=jaxmr.DamperObserver(bwbn, gain=0.3),
+        )
+        names = car_sensors + ("damper_force",)
     else:
         # No observer, no wheel accelerometer, another sample time and no delay.
         controller = jaxmr.ObserverBasedController(
@@ -315,8 +439,20 @@ def test_the_c_controller_gives_the_jax_commands(tmp_path, case):
         )
         names = ("damper_displacement", "body_acceleration")
     inputs = _synthetic(names)
-    ours = np.asarray(_replay(controller, names, jnp.asarray(inputs)))
+    replayed = controller
+    if factors is not None:  # the same commands, and the margin in the law's state
+        margin = _Margin(controller.law, factors)
+        replayed = eqx.tree_at(lambda c: c.law, controller, margin)
+    final, ours = _replay(replayed, names, jnp.asarray(inputs))
+    ours = np.asarray(ours)
     assert np.ptp(ours) > 0.3  # the law acts
+    if factors is not None:
+        # A hard switch: a decision that differed would be a gap of I_max. C and JAX
+        # compute the factors to some 1e-13 relative (the continuous laws' commands
+        # agree as closely), which moves |ŝ| by as much; no sample here comes within
+        # 1e-6 of the switch (measured: 3e-3 groundhook, 8e-2 clipped-optimal), so
+        # every decision is the same in both and the commands agree exactly.
+        assert float(final.law) > 1e-6
     c = _compiled(controller, tmp_path, "law", names)
     np.testing.assert_allclose(c.run(inputs), ours, rtol=0, atol=COMMAND_TOLERANCE)
 
@@ -365,15 +501,29 @@ def test_an_export_never_replaces_a_file_unless_forced(tmp_path, skyhook):
         jaxmr.export_stablehlo(skyhook, header)
 
 
+class _Viscous(jaxmr.AbstractHysteresis):
+    """A user's own damper model, F = c v (c [N s/m]), which no C writer knows."""
+
+    c: float
+
+    def rates(self, state, x, v):
+        return state
+
+    def force(self, state, x, v):
+        return self.c * v
+
+
 def test_what_has_no_c_writer_says_so(skyhook):
     # Each refusal names the class and what is supported.
-    on_off = _observer_based(jaxmr.OnOffGroundhook(1.0))
-    with pytest.raises(NotImplementedError, match="OnOffGroundhook.*supported: Sky"):
-        jaxmr.export_c(on_off, "unused")
-    normalized = jaxmr.NormalizedBoucWen(1e3, 500.0, 900.0, 100.0, 0.5, 2.0)
-    with pytest.raises(NotImplementedError, match="NormalizedBoucWen.*Dahl, LuGre"):
+    power = _observer_based(jaxmr.PowerDrivenDamper(1000.0, 1.0))
+    with pytest.raises(
+        NotImplementedError, match="PowerDrivenDamper.*supported: Sky.*ClippedOptimal"
+    ):
+        jaxmr.export_c(power, "unused")
+    with pytest.raises(NotImplementedError, match="_Viscous.*Dahl, LuGre, Bingham"):
         jaxmr.export_c(
-            _observer_based(jaxmr.Skyhook(2000.0, 1.0), damper=normalized), "unused"
+            _observer_based(jaxmr.Skyhook(2000.0, 1.0), damper=_Viscous(900.0)),
+            "unused",
         )
     with pytest.raises(NotImplementedError, match="ObserverBasedController"):
         jaxmr.export_c(jaxmr.Skyhook(2000.0, 1.0), "unused")

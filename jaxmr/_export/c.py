@@ -560,14 +560,17 @@ def export_c(
     C and the JAX controller give the same commands to 1e-9 A.
 
     Supported: an `ObserverBasedController` (not `oracle`) with a
-    `VelocityEstimator` or none, a `DamperObserver` over a `BoucWen`, `Spencer`,
+    `VelocityEstimator` or none, a `DamperObserver` over a `BoucWen`,
+    `NormalizedBoucWen`, `BoucWenBaberNoori`, `Spencer`, `ShearThinningSpencer`,
     `Dahl`, `LuGre` or `Bingham` damper (parameters numbers or `LinearLaw`,
     `ConstantLaw`, `ExponentialLaw`, `PolynomialLaw`; current dynamics none or
     `FirstOrderLag`) or none, and the laws `Skyhook`, `OnOffSkyhook`, `Groundhook`,
-    `Hybrid`, `ContinuousClippedOptimal` (its state measured: no estimator gives the
-    positions) and `ForceFeedback` (`linear` or `mlp`), hard or relaxed. Anything
-    else raises `NotImplementedError` naming its class and what is supported;
-    `export_stablehlo` exports any controller for an XLA runtime.
+    `OnOffGroundhook`, `Hybrid`, `ClippedOptimal` (its damper force measured or the
+    observer's), `ContinuousClippedOptimal` (both clipped-optimal laws on a measured
+    state: no estimator gives the positions) and `ForceFeedback` (`linear` or
+    `mlp`), hard or relaxed. Anything else raises `NotImplementedError` naming its
+    class and what is supported; `export_stablehlo` exports any controller for an
+    XLA runtime.
 
     **Arguments:**
 

@@ -16,7 +16,16 @@ from .._current_law import (
     PolynomialLaw,
 )
 from .._damper import Damper
-from .._hysteresis import Bingham, BoucWen, Dahl, LuGre, Spencer
+from .._hysteresis import (
+    Bingham,
+    BoucWen,
+    BoucWenBaberNoori,
+    Dahl,
+    LuGre,
+    NormalizedBoucWen,
+    ShearThinningSpencer,
+    Spencer,
+)
 from .syntax import literal
 
 
@@ -47,7 +56,17 @@ _BOUC_WEN_BOUNDS = """\
     double z0 = pow(q->A / safe, 1.0 / q->n);
     b[0] = bounded ? z0 : INFINITY;"""
 
+# Spencer-type models (`Spencer`, `ShearThinningSpencer`) differ only in their
+# dashpots c0(v), c1(v) [N s/m]: `dashpots` is the body of `$p_dashpots`, which sets
+# c[0] and c[1] as the model's `dashpots(v)` computes them.
 _SPENCER_HELPERS = """\
+/* $p_dashpots: c0 and c1 [N s/m] at the piston velocity v [m/s]. */
+static void $p_dashpots(const $p_params *q, double v, double *c)
+{
+    (void)v;
+%s
+}
+
 /* Spencer's z0 = (A / (beta + gamma))^(1/n). */
 static double $p_z0(const $p_params *q)
 {
@@ -57,9 +76,55 @@ static double $p_z0(const $p_params *q)
 /* The internal displacement's rate [m/s]. */
 static double $p_y_rate(const $p_params *q, double z, double y, double x, double v)
 {
-    return (q->alpha * z + q->c0 * v + q->k0 * (x - y)) / (q->c0 + q->c1);
+    double c[2];
+    $p_dashpots(q, v, c);
+    return (q->alpha * z + c[0] * v + q->k0 * (x - y)) / (c[0] + c[1]);
+}
+
+/* Spencer's force [N]: c1(v) y_rate + k1 (x - x0), z unclipped. */
+static double $p_spencer_force(const $p_params *q, const double *s, double x,
+                               double v)
+{
+    double c[2];
+    $p_dashpots(q, v, c);
+    return c[1] * $p_y_rate(q, s[0], s[1], x, v) + q->k1 * (x - q->x0);
+}
+
+/* d force / d (z, y), as forward mode computes it: the tangent of the rate's
+   numerator (alpha, and k0 times -1) through the division, times c1(v). */
+static void $p_spencer_gradient(const $p_params *q, double v, double *g)
+{
+    double c[2];
+    $p_dashpots(q, v, c);
+    g[0] = c[1] * (q->alpha / (c[0] + c[1]));
+    g[1] = c[1] * (-q->k0 / (c[0] + c[1]));
 }
 """
+
+
+def _spencer(fields: tuple[str, ...], dashpots: str) -> "_Model":
+    """A Spencer-type model: `fields` its parameters, `dashpots` C statements setting
+    c[0] and c[1] [N s/m] from `q` and the piston velocity `v` [m/s]."""
+    return _Model(
+        fields,
+        # z seen clipped to 1e3 z0, as jaxmr's rates see it.
+        rates="""\
+    double z0 = $p_z0(q);
+    double z_max = (isfinite(z0) && z0 > 0.0) ? 1000.0 * z0 : INFINITY;
+    double z = clip(s[0], -z_max, z_max);
+    double y_rate = $p_y_rate(q, z, s[1], x, v);
+    ds[0] = bouc_wen_rate(z, v - y_rate, q->A, q->beta, q->gamma, q->n);
+    ds[1] = y_rate;""",
+        force="$p_spencer_force(q, s, x, v)",
+        gradient="    $p_spencer_gradient(q, v, g);",
+        bounds="    b[0] = $p_z0(q);\n    b[1] = INFINITY;",
+        yield_force="q->alpha * $p_z0(q)",
+        helpers=_SPENCER_HELPERS % dashpots,
+        initial=("0.0", "$x"),  # y starts at x: the device at rest
+    )
+
+
+_SPENCER_FIELDS = ("alpha", "c0", "k0", "c1", "k1", "x0", "gamma", "beta", "A", "n")
 
 _LUGRE_HELPERS = """\
 /* LuGre.stribeck [N] */
@@ -76,6 +141,30 @@ static double $p_y_rate(const $p_params *q, double y, double v)
 }
 """
 
+# BoucWenBaberNoori.rates: pinching h(z) and degradation (nu, eta, A) of the
+# dissipated energy, h = 1 where nothing pinches (zeta1 = 0 or A = 0), as its `where`s
+# select.
+_BWBN_RATES = """\
+    double z = s[0], energy = s[1];
+    double nu = 1.0 + q->delta_nu * energy;
+    double eta = 1.0 + q->delta_eta * energy;
+    double A = fmax(q->A0 - q->delta_A * energy, 0.0);
+    double zeta1 = q->zeta_s * (1.0 - exp(-q->p * energy));
+    double zeta2 = (q->psi + q->delta_psi * energy) * (q->lam + zeta1);
+    double h = 1.0;
+    if (zeta1 != 0.0 && A > 0.0) {
+        double z_u = pow(A / (nu * (q->beta + q->gamma)), 1.0 / q->n);
+        double r = (z * sign(v) - q->q * z_u) / zeta2;
+        h = 1.0 - zeta1 * exp(-(r * r));
+    }
+    ds[0] = h * nu * bouc_wen_rate(z, v, A / nu, q->beta, q->gamma, q->n) / eta;
+    ds[1] = z * v;"""
+
+_BWBN_FIELDS = tuple(
+    "k alpha c A0 beta gamma n f0 delta_nu delta_eta delta_A zeta_s p q psi delta_psi "
+    "lam".split()
+)
+
 # The hysteresis models written in C.
 _MODELS = {
     BoucWen: _Model(
@@ -86,24 +175,34 @@ _MODELS = {
         bounds=_BOUC_WEN_BOUNDS,
         yield_force="fabs(q->alpha) * (isfinite(b[0]) ? b[0] : 1.0)",
     ),
-    Spencer: _Model(
-        ("alpha", "c0", "k0", "c1", "k1", "x0", "gamma", "beta", "A", "n"),
-        # z seen clipped to 1e3 z0, as jaxmr's rates see it.
+    NormalizedBoucWen: _Model(
+        ("kappa_x", "kappa_w", "c0", "rho", "sigma", "n", "x0", "f0"),
         rates="""\
-    double z0 = $p_z0(q);
-    double z_max = (isfinite(z0) && z0 > 0.0) ? 1000.0 * z0 : INFINITY;
-    double z = clip(s[0], -z_max, z_max);
-    double y_rate = $p_y_rate(q, z, s[1], x, v);
-    ds[0] = bouc_wen_rate(z, v - y_rate, q->A, q->beta, q->gamma, q->n);
-    ds[1] = y_rate;""",
-        force="q->c1 * $p_y_rate(q, s[0], s[1], x, v) + q->k1 * (x - q->x0)",
-        gradient="""\
-    g[0] = q->c1 * (q->alpha / (q->c0 + q->c1));
-    g[1] = q->c1 * (-q->k0 / (q->c0 + q->c1));""",
-        bounds="    b[0] = $p_z0(q);\n    b[1] = INFINITY;",
-        yield_force="q->alpha * $p_z0(q)",
-        helpers=_SPENCER_HELPERS,
-        initial=("0.0", "$x"),  # y starts at x: the device at rest
+    double power = abs_pow(s[0], q->n);
+    ds[0] = q->rho * (v - (q->sigma * fabs(v) * sign(s[0])
+                           + (1.0 - q->sigma) * v) * power);""",
+        force="q->kappa_x * (x - q->x0) + q->kappa_w * s[0] + q->c0 * v + q->f0",
+        gradient="    g[0] = q->kappa_w;",
+        bounds="    b[0] = 1.0;",
+        yield_force="q->kappa_w",
+    ),
+    BoucWenBaberNoori: _Model(
+        _BWBN_FIELDS,
+        rates=_BWBN_RATES,
+        force="q->alpha * q->k * x + (1.0 - q->alpha) * q->k * s[0] + q->c * v + q->f0",
+        # The force reads z alone: the energy's entry is 0.
+        gradient="    g[0] = (1.0 - q->alpha) * q->k;\n    g[1] = 0.0;",
+        bounds=None,
+        # (1 - alpha) k z_u of the undegraded model.
+        yield_force="(1.0 - q->alpha) * q->k\n"
+        "           * pow(q->A0 / (q->beta + q->gamma), 1.0 / q->n)",
+    ),
+    Spencer: _spencer(_SPENCER_FIELDS, "    c[0] = q->c0;\n    c[1] = q->c1;"),
+    ShearThinningSpencer: _spencer(
+        _SPENCER_FIELDS + ("e0", "e1"),
+        # ShearThinningSpencer.dashpots: c_k / (1 + e_k |v|).
+        "    c[0] = q->c0 / (1.0 + q->e0 * fabs(v));\n"
+        "    c[1] = q->c1 / (1.0 + q->e1 * fabs(v));",
     ),
     Dahl: _Model(
         ("k_x", "k_w", "rho"),

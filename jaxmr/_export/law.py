@@ -8,10 +8,12 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._control import (
+    ClippedOptimal,
     ContinuousClippedOptimal,
     ForceFeedback,
     Groundhook,
     Hybrid,
+    OnOffGroundhook,
     OnOffSkyhook,
     Skyhook,
 )
@@ -22,8 +24,8 @@ from .damper import unsupported
 from .syntax import literal
 
 SUPPORTED = (
-    "Skyhook, OnOffSkyhook, Groundhook, Hybrid, ContinuousClippedOptimal, "
-    "ForceFeedback (linear, or linear + MLP)"
+    "Skyhook, OnOffSkyhook, Groundhook, OnOffGroundhook, Hybrid, ClippedOptimal, "
+    "ContinuousClippedOptimal, ForceFeedback (linear, or linear + MLP)"
 )
 
 
@@ -219,6 +221,71 @@ def _gain_row(law) -> np.ndarray:
     return gain
 
 
+def _switch_law(law, what: str, setup: str, a: str, b: str, reads) -> LawC:
+    """An on/off law: `I_max gate(a b, angular_switch(a, b), T)`, clipped to
+    [0, I_max], with `a` and `b` C variables (one unit) that the statements `setup`
+    declare from the readings `r`. It inverts nothing."""
+    t, i_max = _temperature(law), literal(law.i_max)
+    code = f"""
+/* {what} (temperature {t!r}). */
+static double law_command(const readings *r, const observer *o)
+{{
+{setup}
+    (void)o;
+    return clip({i_max} * {_gate(a, b, t)}, 0.0, {i_max});
+}}
+"""
+    return LawC(tuple(reads), False, None, code)
+
+
+def _primary(law, indent: str) -> str:
+    """The primary controller's force f_c = -K x [N] of a clipped-optimal law on the
+    measured state x = (z_s, v_s, z_u, v_u), a C expression (continued lines start
+    with `indent`)."""
+    terms = f"\n{indent}+ ".join(
+        f"{literal(k)} * r->{name}"
+        for k, name in zip(_gain_row(law), QUARTER_CAR_STATE)
+    )
+    return f"-({terms})"
+
+
+def _clipped_optimal_setup(law) -> str:
+    """`ClippedOptimal`: the lag of the damper force behind the primary controller's
+    f_c [N], and the force [N] (measured, or the observer's model force)."""
+    return f"""\
+    double target = {_primary(law, " " * 22)};
+    double force = r->damper_force;
+    double lag = target - force;"""
+
+
+# The on/off laws: (what, the C statements declaring the switch's two factors, the
+# factors, what the law reads).
+_SWITCHES = {
+    OnOffSkyhook: (
+        "OnOffSkyhook: I_max H(body_velocity v)",
+        lambda law: "    double body = r->body_velocity, v = r->damper_velocity;",
+        "body",
+        "v",
+        ("body_velocity", "damper_velocity"),
+    ),
+    OnOffGroundhook: (
+        "OnOffGroundhook: I_max H(-wheel_velocity v)",
+        # -wheel_velocity as JAX negates it before the product (a sign flip, exact).
+        lambda law: "    double wheel = -r->wheel_velocity, v = r->damper_velocity;",
+        "wheel",
+        "v",
+        ("wheel_velocity", "damper_velocity"),
+    ),
+    ClippedOptimal: (
+        "ClippedOptimal: I_max H((f_c - f) f), f_c = -K x",
+        _clipped_optimal_setup,
+        "lag",
+        "force",
+        QUARTER_CAR_STATE + ("damper_force",),
+    ),
+}
+
+
 def law_c(law) -> LawC:
     """The C of `law` (one of `SUPPORTED`)."""
     kind = type(law)
@@ -254,29 +321,15 @@ def law_c(law) -> LawC:
             ("body_velocity", "wheel_velocity", "damper_velocity"),
         )
     if kind is ContinuousClippedOptimal:
-        gain = _gain_row(law)
-        terms = "\n                + ".join(
-            f"{literal(k)} * r->{name}" for k, name in zip(gain, QUARTER_CAR_STATE)
-        )
         return _force_law(
             law,
             "ContinuousClippedOptimal: F* = -K x",
-            f"    target = -({terms});",
+            f"    target = {_primary(law, ' ' * 16)};",
             QUARTER_CAR_STATE,
         )
-    if kind is OnOffSkyhook:
-        t = _temperature(law)
-        code = f"""
-/* OnOffSkyhook at temperature {t!r}. */
-static double law_command(const readings *r, const observer *o)
-{{
-    double body = r->body_velocity, v = r->damper_velocity;
-    (void)o;
-    return clip({literal(law.i_max)} * {_gate("body", "v", t)}, 0.0,
-                {literal(law.i_max)});
-}}
-"""
-        return LawC(("body_velocity", "damper_velocity"), False, None, code)
+    if kind in _SWITCHES:
+        what, setup, a, b, reads = _SWITCHES[kind]
+        return _switch_law(law, what, setup(law), a, b, reads)
     if kind is ForceFeedback:
         features = law.features
         scales = np.asarray(law.scales)
