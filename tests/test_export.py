@@ -80,6 +80,11 @@ class _Margin(jaxmr.AbstractController):
     def i_max(self):
         return self.law.i_max
 
+    @property
+    def reads_positions(self):
+        # The law's: an estimator estimates the positions it reads.
+        return getattr(self.law, "reads_positions", False)
+
     def init(self, measurement):
         return jnp.asarray(jnp.inf)
 
@@ -273,6 +278,8 @@ def _clipped_factors(law, r):
         "clipped-normalized",
         "skyhook-shear-thinning",
         "hybrid-bwbn",
+        "clipped-on-off-estimated",
+        "continuous-clipped-estimated",
     ],
 )
 def test_the_c_controller_gives_the_jax_commands(tmp_path, case):
@@ -430,6 +437,20 @@ def test_the_c_controller_gives_the_jax_commands(tmp_path, case):
             observer=jaxmr.DamperObserver(bwbn, gain=0.3),
         )
         names = car_sensors + ("damper_force",)
+    elif case == "clipped-on-off-estimated":
+        # The hard on/off clipped-optimal law on the car's sensors and a load cell:
+        # the velocities and the positions estimated.
+        controller = jaxmr.ObserverBasedController(
+            jaxmr.ClippedOptimal(_GAIN, 1.0),
+            estimator=jaxmr.VelocityEstimator(position_high_pass=0.2),
+        )
+        names = car_sensors + ("damper_force",)
+        factors = _clipped_factors
+    elif case == "continuous-clipped-estimated":
+        # The hard continuous clipped-optimal law on the car's three sensors alone:
+        # the state estimated, the damper's state observed (open loop).
+        controller = _observer_based(jaxmr.ContinuousClippedOptimal(_GAIN, 1.0))
+        names = car_sensors
     else:
         # No observer, no wheel accelerometer, another sample time and no delay.
         controller = jaxmr.ObserverBasedController(
@@ -450,8 +471,9 @@ def test_the_c_controller_gives_the_jax_commands(tmp_path, case):
         # A hard switch: a decision that differed would be a gap of I_max. C and JAX
         # compute the factors to some 1e-13 relative (the continuous laws' commands
         # agree as closely), which moves |ŝ| by as much; no sample here comes within
-        # 1e-6 of the switch (measured: 3e-3 groundhook, 8e-2 clipped-optimal), so
-        # every decision is the same in both and the commands agree exactly.
+        # 1e-6 of the switch (measured: 3e-3 groundhook, 8e-2 clipped-optimal, 8e-4
+        # clipped-optimal on estimated positions), so every decision is the same in
+        # both and the commands agree exactly.
         assert float(final.law) > 1e-6
     c = _compiled(controller, tmp_path, "law", names)
     np.testing.assert_allclose(c.run(inputs), ours, rtol=0, atol=COMMAND_TOLERANCE)

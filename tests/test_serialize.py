@@ -112,7 +112,7 @@ def test_a_controller_and_its_sensors_round_trip(tmp_path):
     sensors = jaxmr.realistic_sensors(car, load_cell=True)
     controller = jaxmr.ObserverBasedController(
         jaxmr.Skyhook(1500.0, 1.0, temperature=0.1),
-        estimator=jaxmr.VelocityEstimator(crossover=4.0),
+        estimator=jaxmr.VelocityEstimator(crossover=4.0, position_high_pass=0.05),
         observer=jaxmr.DamperObserver(car.damper, gain=0.2, substeps=8),
         sampling=jaxmr.Sampling(2e-3, 2),
     )
@@ -127,6 +127,7 @@ def test_a_controller_and_its_sensors_round_trip(tmp_path):
         assert tree_allclose(new, old, rtol=0, atol=0)
     assert loaded.sampling == jaxmr.Sampling(2e-3, 2)
     assert isinstance(loaded.sampling.dt, float) and loaded.observer.substeps == 8
+    assert float(loaded.estimator.position_high_pass) == 0.05  # [Hz], not the default
     assert loaded_sensors.names == sensors.names
 
     T = 0.3  # [s]

@@ -1,5 +1,7 @@
 """Backstepping control of the SAS rig's body angle (source doc 001 §7.1)."""
 
+from typing import ClassVar
+
 import equinox as eqx
 
 from .._custom_types import Array, Float
@@ -37,6 +39,9 @@ class Backstepping(AbstractController):
     - `y_ref`: the reference $y_\mathrm{ref}$ [rad or m], default 0.
     - `temperature`: $T \ge 0$; 0 (default) is the hard law.
     """
+
+    # It reads positions: `ObserverBasedController`'s estimator estimates them.
+    reads_positions: ClassVar[bool] = True
 
     h1: Float[Array, ""] = eqx.field(converter=as_float_array)
     h2: Float[Array, ""] = eqx.field(converter=as_float_array)

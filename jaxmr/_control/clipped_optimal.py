@@ -1,5 +1,7 @@
 """Clipped-optimal control (Dyke et al. 1996) around a linear primary controller."""
 
+from typing import ClassVar
+
 import equinox as eqx
 
 from .._custom_types import Array, Float
@@ -29,7 +31,9 @@ class ClippedOptimal(AbstractController):
     lags the primary controller's $f_c = -K x$ in the same direction,
     $$i = I_\max\, H((f_c - f)\, f)\quad(H(0) = 1),$$
     with the measured damper force $f$ and the measured state
-    $x = (z_s, \dot z_s, z_u, \dot z_u)$ [m, m/s]. $K$ is typically an LQR gain:
+    $x = (z_s, \dot z_s, z_u, \dot z_u)$ [m, m/s] (on a car's sensors, estimated:
+    run it in an `ObserverBasedController` with a `VelocityEstimator`, which then
+    estimates the positions too). $K$ is typically an LQR gain:
     `ClippedOptimal.design(A, B, Q, R, i_max)` (differentiable in the weights).
 
     Relaxed ($T > 0$): $i = I_\max\,\sigma(\hat s/T)$,
@@ -41,6 +45,9 @@ class ClippedOptimal(AbstractController):
     - `i_max`: the "on" current (or voltage, Dyke's $V_\max$) $I_\max$ [A].
     - `temperature`: $T \ge 0$, dimensionless; 0 (default) is the hard law.
     """
+
+    # It reads positions: `ObserverBasedController`'s estimator estimates them.
+    reads_positions: ClassVar[bool] = True
 
     gain: Float[Array, "4"] = eqx.field(converter=as_float_array)
     i_max: Float[Array, ""] = eqx.field(converter=as_float_array)
@@ -71,7 +78,8 @@ class ContinuousClippedOptimal(AbstractController):
     $$i = \Pi(f_c),$$
     with the inverse damper model $\Pi$ (`DamperPlant.current_for_force`, the
     semi-active projection on the device's band) and the measured state
-    $x = (z_s, \dot z_s, z_u, \dot z_u)$ [m, m/s]. Relaxed ($T > 0$) by a soft clip.
+    $x = (z_s, \dot z_s, z_u, \dot z_u)$ [m, m/s] (estimated on a car's sensors, as
+    for `ClippedOptimal`). Relaxed ($T > 0$) by a soft clip.
 
     **Arguments:**
 
@@ -79,6 +87,9 @@ class ContinuousClippedOptimal(AbstractController):
     - `i_max`: the top of the current range $I_\max$ [A].
     - `temperature`: $T \ge 0$; 0 (default) is the hard law.
     """
+
+    # It reads positions: `ObserverBasedController`'s estimator estimates them.
+    reads_positions: ClassVar[bool] = True
 
     gain: Float[Array, "4"] = eqx.field(converter=as_float_array)
     i_max: Float[Array, ""] = eqx.field(converter=as_float_array)

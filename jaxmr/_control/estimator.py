@@ -1,6 +1,8 @@
 r"""Velocities a car measures no sensor for, estimated from its accelerometers and
 its deflection sensor, as the controller of a real car estimates them."""
 
+import dataclasses
+
 import equinox as eqx
 import jax.numpy as jnp
 
@@ -15,7 +17,10 @@ class EstimatorState(eqx.Module):
     the previous sample [m/s² or rad/s²]; the relative acceleration's reading
     `relative_previous` there and its bias estimate `relative_bias` [m/s² or
     rad/s²]; the body velocity `body_velocity`, the deflection `displacement` [m or
-    rad] and its rate `damper_velocity` [m/s or rad/s] at the last sample."""
+    rad] and its rate `damper_velocity` [m/s or rad/s] at the last sample; and
+    `body_position` [m or rad], the body's estimated absolute position there, where
+    the estimator estimates positions (`VelocityEstimator.init(...,
+    positions=True)`), else `None`."""
 
     started: Bool[Array, ""]
     body_bias: Scalar
@@ -26,6 +31,7 @@ class EstimatorState(eqx.Module):
     body_velocity: Scalar
     displacement: Scalar
     damper_velocity: Scalar
+    body_position: Scalar | None = None
 
 
 def _cos_of_root_minus_one(u: Scalar) -> Scalar:
@@ -69,6 +75,21 @@ class VelocityEstimator(eqx.Module):
       undulations (a quarter of the body velocity's RMS on an ISO C road at 20 m/s,
       where the Wk-weighted comfort weighs little).
     - **Wheel velocity** $\hat{\dot z}_u = \hat{\dot z}_s - \hat v$.
+    - **Positions**, for the laws that read the full state $(z_s, \dot z_s, z_u,
+      \dot z_u)$ (`ClippedOptimal`, `ContinuousClippedOptimal`,
+      `LyapunovController`, `Backstepping`; `ObserverBasedController` asks for
+      them where its law reads them): the body's absolute position is the estimated
+      body velocity through a leaky integrator with the corner $f_p$
+      (`position_high_pass`), $\hat z_s = \hat{\dot z}_s/(s + \omega_p)$,
+      $\omega_p = 2\pi f_p$, altogether
+      $\hat z_s = \frac{s^3}{(s + \omega_h)^2 (s + \omega_p)}\,z_s$: the
+      position above both corners (its phase leads by $\arctan(f_p/f)$ more, 5° at
+      1.1 Hz with the default 0.1 Hz), without the drift a pure integral of the
+      velocity's slow errors would give (a change of accelerometer bias leaves no
+      offset), and without the road's slow undulations. The wheel's is the body's
+      less the filtered deflection, $\hat z_u = \hat z_s - \hat x$ (the deflection
+      is $z_s - z_u$): the suspension's relative position is measured, only the
+      common absolute part is estimated.
 
     The estimates start at rest, the first readings taken as the biases (the machine
     at rest when the controller starts). A missing wheel accelerometer counts as
@@ -83,14 +104,23 @@ class VelocityEstimator(eqx.Module):
       hop of a car).
     - `damping`: $\zeta > 0$ [1], default 0.7.
     - `high_pass`: $f_h > 0$ [Hz], default 0.1.
+    - `position_high_pass`: $f_p > 0$ [Hz], default 0.1.
     """
 
     crossover: Float[Array, ""] = eqx.field(converter=as_float_array, default=5.0)
     damping: Float[Array, ""] = eqx.field(converter=as_float_array, default=0.7)
     high_pass: Float[Array, ""] = eqx.field(converter=as_float_array, default=0.1)
+    position_high_pass: Float[Array, ""] = eqx.field(
+        converter=as_float_array, default=0.1
+    )
 
     def __check_init__(self):
-        for name, unit in (("crossover", "Hz"), ("damping", ""), ("high_pass", "Hz")):
+        for name, unit in (
+            ("crossover", "Hz"),
+            ("damping", ""),
+            ("high_pass", "Hz"),
+            ("position_high_pass", "Hz"),
+        ):
             value = getattr(self, name)
             check_concrete(
                 (value > 0) & jnp.isfinite(value),
@@ -99,10 +129,15 @@ class VelocityEstimator(eqx.Module):
                 value,
             )
 
-    def init(self, measurement) -> EstimatorState:
-        """The state before the first sample (reset from the first readings there)."""
+    def init(self, measurement, positions: bool = False) -> EstimatorState:
+        """The state before the first sample (reset from the first readings there).
+        `positions` (static): whether `step` also estimates the body and wheel
+        positions (default False: the velocities alone, as a law that reads no
+        position needs)."""
         zero = jnp.zeros_like(jnp.asarray(measurement["damper_displacement"]))
-        return EstimatorState(jnp.asarray(False), *([zero] * 8))
+        return EstimatorState(
+            jnp.asarray(False), *([zero] * 8), body_position=zero if positions else None
+        )
 
     def gains(self, dt: float) -> tuple[Scalar, Scalar, Scalar]:
         r"""The tracker's $(\alpha, \beta, \gamma)$ [1] at sample time `dt` [s], for
@@ -141,7 +176,9 @@ class VelocityEstimator(eqx.Module):
         **Returns:** `body_velocity`, `wheel_velocity`, `damper_velocity` [m/s or
         rad/s], the filtered `damper_displacement` [m or rad] and the bias-free
         (high-passed) `body_acceleration` (and `wheel_acceleration` where measured)
-        [m/s² or rad/s²], and the next `EstimatorState`."""
+        [m/s² or rad/s²]; where `state` carries a position (`init(...,
+        positions=True)`), also `body_position` and `wheel_position` [m or rad]; and
+        the next `EstimatorState`."""
         a_s = jnp.asarray(measurement["body_acceleration"])
         x = jnp.asarray(measurement["damper_displacement"])
         wheel = "wheel_acceleration" in measurement
@@ -191,4 +228,17 @@ class VelocityEstimator(eqx.Module):
         }
         if wheel:
             estimates["wheel_acceleration"] = a_u - wheel_bias
+        if state.body_position is not None:
+            # The leaky integral of the body velocity, trapezoidal with the older
+            # term leaked over the sample, as the velocity's own; apart from the
+            # velocities', so that those stay what they are without positions.
+            position_leak = jnp.exp(-2 * jnp.pi * self.position_high_pass * dt)
+            body_position = position_leak * state.body_position + 0.5 * dt * (
+                position_leak * state.body_velocity + new.body_velocity
+            )
+            body_position = jnp.where(started, body_position, zero)
+            new = dataclasses.replace(new, body_position=body_position)
+            estimates["body_position"] = body_position
+            # The deflection is z_s - z_u.
+            estimates["wheel_position"] = body_position - new.displacement
         return estimates, new

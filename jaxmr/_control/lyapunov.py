@@ -1,5 +1,7 @@
 """The Lyapunov law (Leitmann 1994)."""
 
+from typing import ClassVar
+
 import equinox as eqx
 import jax.numpy as jnp
 
@@ -36,6 +38,9 @@ class LyapunovController(AbstractController):
     - `i_max`: the "on" current $I_\max$ [A].
     - `temperature`: $T \ge 0$, dimensionless; 0 (default) is the hard law.
     """
+
+    # It reads positions: `ObserverBasedController`'s estimator estimates them.
+    reads_positions: ClassVar[bool] = True
 
     P: Float[Array, "4 4"] = eqx.field(converter=as_float_array)
     B: Float[Array, "4"] = eqx.field(converter=as_float_array)

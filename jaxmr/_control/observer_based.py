@@ -15,6 +15,7 @@ from .observer import DamperObserver, ObserverState
 from .sampling import Sampling
 from .sensors import readings
 from .smooth import clip_command
+from .state_space import reads_positions
 
 
 class ControllerState(eqx.Module):
@@ -49,7 +50,9 @@ class ObserverBasedController(AbstractController):
     and its own nominal damper's observed state for the inverse model.
 
     At every sample (`sampling.dt`): the `estimator` turns the readings into the
-    velocities no sensor gives (its estimates replace readings of the same name);
+    velocities no sensor gives, and the absolute body and wheel positions where the
+    law reads them (`estimates_positions`: the clipped-optimal, Lyapunov and
+    backstepping laws); its estimates replace readings of the same name;
     the `observer` brings its nominal damper's state up to this sample and corrects it
     with the measured force (`damper_force`) where one is read; the law then decides
     the command from the readings and estimates, inverting the observer's damper
@@ -72,7 +75,8 @@ class ObserverBasedController(AbstractController):
 
     - `law`: any jaxmr controller (its `i_max` is this controller's).
     - `estimator`: a `VelocityEstimator`, or `None` (default): the law reads the
-      readings as they are (sensors that give velocities, or perfect information).
+      readings as they are (sensors that give velocities and, for a law that reads
+      them, positions; or perfect information).
     - `observer`: a `DamperObserver` with the nominal damper model, or `None`
       (default).
     - `sampling`: the controller's `Sampling(dt, delay)` [s, samples], at which the
@@ -120,12 +124,18 @@ class ObserverBasedController(AbstractController):
     def i_max(self):
         return self.law.i_max
 
+    @property
+    def estimates_positions(self) -> bool:
+        """Whether the estimator also estimates the body and wheel positions [m or
+        rad]: it has one and the law reads them (`reads_positions`)."""
+        return self.estimator is not None and reads_positions(self.law)
+
     def tunable(
         self,
         law: Callable | None = None,
         *,
         law_log_space: bool = True,
-        estimator: Sequence[str] = ("crossover", "damping", "high_pass"),
+        estimator: Sequence[str] | None = None,
         observer: Sequence[str] = (),
     ) -> dict:
         """The keywords `parameters`, `log_space` and `bounds` of `jaxmr.tune` (and
@@ -146,13 +156,20 @@ class ObserverBasedController(AbstractController):
           pair[1].c_sky`); it must read the law only (`pair[1]`). `None`: none.
         - `law_log_space`: whether the law's arrays are tuned in log space (True,
           positive gains) or in values (False: signed weights).
-        - `estimator`: the `VelocityEstimator` fields to tune (default all three);
-          `()` for none. Needs an estimator when not empty.
+        - `estimator`: the `VelocityEstimator` fields to tune, of `crossover`,
+          `damping`, `high_pass` and `position_high_pass`; `()` for none. Needs an
+          estimator when not empty. Default `None`: every field the commands depend
+          on, the first three and, where the estimator estimates positions
+          (`estimates_positions`), `position_high_pass`.
         - `observer`: the `DamperObserver` fields to tune: `("gain",)` (useful with
           a load cell, which the gain weighs) or `()` (default).
 
         **Returns:** `{"parameters": ..., "log_space": ..., "bounds": ...}`.
         """
+        if estimator is None:
+            estimator = _ESTIMATOR_FIELDS[:3]
+            if self.estimates_positions:
+                estimator += ("position_high_pass",)
         estimator, observer = tuple(estimator), tuple(observer)
         for fields, part, known in (
             (estimator, self.estimator, _ESTIMATOR_FIELDS),
@@ -210,7 +227,11 @@ class ObserverBasedController(AbstractController):
         """The state before the first sample. The observer's commands before the first
         are the law's first decision at the first readings, the damper at zero
         current, as `simulate_system` starts the device."""
-        estimator = () if self.estimator is None else self.estimator.init(measurement)
+        estimator = (
+            ()
+            if self.estimator is None
+            else self.estimator.init(measurement, positions=self.estimates_positions)
+        )
         # The estimates at the first sample, for the law's own `init`.
         merged, _ = self._estimated(measurement, estimator)
         law = self.law.init(merged)
@@ -243,7 +264,7 @@ class ObserverBasedController(AbstractController):
         return command, ControllerState(estimator, observer, law)
 
 
-_ESTIMATOR_FIELDS = ("crossover", "damping", "high_pass")
+_ESTIMATOR_FIELDS = ("crossover", "damping", "high_pass", "position_high_pass")
 _OBSERVER_FIELDS = ("gain",)
 # The observer's gain is a share of the force error removed per sample: within (0, 1].
 _GAIN_BOUNDS = (1e-4, 1.0)

@@ -165,7 +165,9 @@ class _Readings(dict):
             f"{name!r} is not measured: the sensors read {measured}. A quantity no "
             "sensor gives is estimated inside the controller: wrap the law in "
             "jaxmr.ObserverBasedController(law, estimator=jaxmr.VelocityEstimator(), "
-            "...) for the velocities, or add a sensor for it to the `Sensors`."
+            "...) for the velocities, and the absolute positions of a law that reads "
+            "them (its class's `reads_positions`), or add a sensor for it to the "
+            "`Sensors`."
         )
 
 

@@ -14,11 +14,28 @@ QUARTER_CAR_STATE = (
 )
 
 
+# The absolute positions among them, which no car sensor gives: a law that reads one
+# declares it (`reads_positions`), so that its controller's estimator estimates them.
+POSITIONS = ("body_position", "wheel_position")
+
+
 def measured_state(measurement: dict) -> Float[Array, "4"]:
     """The state $x = (z_s, \\dot z_s, z_u, \\dot z_u)$ [m, m/s] from a controller's
     measurements (full-state feedback: the laws assume these four are measured or
-    estimated)."""
+    estimated; `VelocityEstimator` estimates them inside an
+    `ObserverBasedController`)."""
     return jnp.stack([measurement[name] for name in QUARTER_CAR_STATE])
+
+
+def reads_positions(law) -> bool:
+    """Whether the controller `law` reads an absolute position (`POSITIONS`): it
+    says so (its attribute `reads_positions`, a class attribute True for the
+    full-state laws and `Backstepping`; a law that wraps another may forward the
+    other's) or its `features` (`ForceFeedback`'s) name one."""
+    features = getattr(law, "features", None) or ()
+    return bool(getattr(law, "reads_positions", False)) or any(
+        name in POSITIONS for name in features
+    )
 
 
 def quarter_car_state_space(

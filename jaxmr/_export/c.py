@@ -131,17 +131,45 @@ def _estimator_constants(estimator: VelocityEstimator, dt: float):
     return leak, 1 - leak, alpha, beta / dt, gamma / dt**2
 
 
-def _estimator(estimator: VelocityEstimator, dt: float, inputs, macro: str) -> str:
-    """`VelocityEstimator.step` on `e`, the estimates written into `r`."""
+@functools.partial(jax.jit, static_argnums=1)
+def _position_leak(estimator: VelocityEstimator, dt: float):
+    """The position integrator's leak over a sample, as the compiled step computes
+    it (apart from `_estimator_constants`, whose numbers stay those of an estimator
+    without positions)."""
+    return jnp.exp(-2 * jnp.pi * estimator.position_high_pass * dt)
+
+
+def _estimator(
+    estimator: VelocityEstimator, dt: float, inputs, macro: str, positions: bool
+) -> str:
+    """`VelocityEstimator.step` on `e`, the estimates written into `r`; with
+    `positions`, the body and wheel positions too."""
     leak, one_minus_leak, alpha, beta_dt, gamma_dt2 = _estimator_constants(
         estimator, dt
     )
     wheel = "wheel_acceleration" in inputs
     a_u = f"in[{macro}_IN_WHEEL_ACCELERATION]" if wheel else "0.0 * a_s"
     wheel_estimate = "\n    r->wheel_acceleration = a_u - wheel_bias;" if wheel else ""
+    position = position_state = position_estimate = ""
+    what = ""
+    if positions:
+        what = f"; the positions, high-pass {float(estimator.position_high_pass)!r} Hz"
+        # Before e->body_velocity moves on: the leaky integral of the old and the
+        # new body velocity (0 at the first sample), trapezoidal.
+        position = f"""
+    const double position_leak = {literal(_position_leak(estimator, dt))};
+    double new_velocity = started ? body_velocity : 0.0;
+    double body_position = position_leak * e->body_position
+        + {literal(0.5 * dt)} * (position_leak * e->body_velocity + new_velocity);"""
+        position_state = "\n    e->body_position = started ? body_position : 0.0;"
+        # The deflection is z_s - z_u.
+        position_estimate = (
+            "\n    r->body_position = e->body_position;"
+            "\n    r->wheel_position = e->body_position - e->displacement;"
+        )
     return f"""
 /* VelocityEstimator.step (crossover {float(estimator.crossover)!r} Hz, damping
-   {float(estimator.damping)!r}, high-pass {float(estimator.high_pass)!r} Hz): the
+   {float(estimator.damping)!r}, high-pass {float(estimator.high_pass)!r} Hz{what}): the
    estimates into r, the next state into e. */
 static void estimator_step(estimator *e, const double *in, readings *r)
 {{
@@ -154,7 +182,8 @@ static void estimator_step(estimator *e, const double *in, readings *r)
     double wheel_bias = started ? leak * e->wheel_bias + one_minus_leak * a_u : a_u;
     double body = a_s - body_bias;
     double body_velocity = leak * e->body_velocity
-                           + {literal(0.5 * dt)} * (leak * e->body_previous + body);
+                           + {literal(0.5 * dt)} * (leak * e->body_previous + body);\
+{position}
     double relative = a_s - a_u;
     double before = e->relative_previous - e->relative_bias;
     double now = relative - e->relative_bias;
@@ -172,12 +201,12 @@ static void estimator_step(estimator *e, const double *in, readings *r)
     e->body_velocity = started ? body_velocity : 0.0;
     e->displacement = started ? predicted_x + {literal(alpha)} * innovation : x;
     e->damper_velocity = started ? predicted_v + {literal(beta_dt)} * innovation
-                                 : 0.0;
+                                 : 0.0;{position_state}
     r->body_velocity = e->body_velocity;
     r->wheel_velocity = e->body_velocity - e->damper_velocity;
     r->damper_velocity = e->damper_velocity;
     r->damper_displacement = e->displacement;
-    r->body_acceleration = body;{wheel_estimate}
+    r->body_acceleration = body;{wheel_estimate}{position_estimate}
 }}
 """
 
@@ -340,6 +369,7 @@ def c_source(controller, name: str, measurements=None) -> tuple[str, str]:
     macro = name.upper()
     i_max = literal(controller.law.i_max)
     estimator, observer = controller.estimator, controller.observer
+    positions = controller.estimates_positions
     force = "damper_force" in p.inputs
 
     # The header.
@@ -348,13 +378,14 @@ def c_source(controller, name: str, measurements=None) -> tuple[str, str]:
         for i, n in enumerate(p.inputs)
     )
     types = []
+    position_member = "\n    double body_position;" if positions else ""
     if estimator is not None:
         types.append(f"""\
 /* The velocity estimator's memory (jaxmr.EstimatorState). */
 typedef struct {{
     int started;
     double body_bias, wheel_bias, body_previous, relative_previous, relative_bias;
-    double body_velocity, displacement, damper_velocity;
+    double body_velocity, displacement, damper_velocity;{position_member}
 }} {name}_estimator;
 """)
     if observer is not None:
@@ -435,11 +466,24 @@ double {name}_step({name}_state *state, const double inputs[{macro}_N_INPUTS]);
     if parts.inverse is not None:
         pieces.append(parts.inverse.hysteresis().strip())
     if estimator is not None:
-        pieces.append(_estimator(estimator, dt, p.inputs, macro).strip())
+        pieces.append(_estimator(estimator, dt, p.inputs, macro, positions).strip())
     if observer is not None:
         assert parts.nominal is not None
         pieces.append(_observer(observer, parts.nominal, dt, delay, force).strip())
     pieces.append(parts.law.code.strip())
+
+    # The estimator's state before the first sample (VelocityEstimator.init).
+    zero_estimator = (
+        "    state->estimator.started = 0;\n"
+        "    state->estimator.body_bias = state->estimator.wheel_bias = 0.0;\n"
+        "    state->estimator.body_previous = 0.0;\n"
+        "    state->estimator.relative_previous = 0.0;\n"
+        "    state->estimator.relative_bias = 0.0;\n"
+        "    state->estimator.body_velocity = 0.0;\n"
+        "    state->estimator.displacement = 0.0;\n"
+        "    state->estimator.damper_velocity = 0.0;"
+        + ("\n    state->estimator.body_position = 0.0;" if positions else "")
+    )
 
     # The readings at a sample, the observer brought to it, and the command.
     direct = "\n".join(
@@ -469,15 +513,7 @@ static void observe(observer *o, const double *in, readings *r)
 }}""")
         estimator_arg = "&state->estimator" if estimator is not None else "0"
         init_estimator = (
-            "    state->estimator.started = 0;\n"
-            "    state->estimator.body_bias = state->estimator.wheel_bias = 0.0;\n"
-            "    state->estimator.body_previous = 0.0;\n"
-            "    state->estimator.relative_previous = 0.0;\n"
-            "    state->estimator.relative_bias = 0.0;\n"
-            "    state->estimator.body_velocity = 0.0;\n"
-            "    state->estimator.displacement = 0.0;\n"
-            "    state->estimator.damper_velocity = 0.0;\n"
-            "    probe_estimator = state->estimator;\n"
+            f"{zero_estimator}\n    probe_estimator = state->estimator;\n"
             if estimator is not None
             else ""
         )
@@ -510,16 +546,7 @@ double {name}_step({name}_state *state, const double inputs[{macro}_N_INPUTS])
     else:
         estimator_arg = "&state->estimator" if estimator is not None else "0"
         init_body = (
-            "    state->estimator.started = 0;\n"
-            "    state->estimator.body_bias = state->estimator.wheel_bias = 0.0;\n"
-            "    state->estimator.body_previous = 0.0;\n"
-            "    state->estimator.relative_previous = 0.0;\n"
-            "    state->estimator.relative_bias = 0.0;\n"
-            "    state->estimator.body_velocity = 0.0;\n"
-            "    state->estimator.displacement = 0.0;\n"
-            "    state->estimator.damper_velocity = 0.0;"
-            if estimator is not None
-            else "    state->unused = 0;"
+            zero_estimator if estimator is not None else "    state->unused = 0;"
         )
         pieces.append(f"""\
 void {name}_init({name}_state *state, const double inputs[{macro}_N_INPUTS])
@@ -553,7 +580,8 @@ def export_c(
     `<NAME>_SAMPLE_PERIOD` [s] and in the header's comment.
 
     The step does the same arithmetic as the JAX controller's, in double precision:
-    the `VelocityEstimator`'s filters, the `DamperObserver`'s RK4 substeps on its
+    the `VelocityEstimator`'s filters (with its leaky position integral where the
+    law reads positions), the `DamperObserver`'s RK4 substeps on its
     nominal damper (current laws, the coil's `FirstOrderLag`), its correction by a
     measured force and its bounds, the law's inverse model on the observed state,
     and the clip to $[0, I_\max]$. `tests/test_export.py` checks that the compiled
@@ -567,8 +595,8 @@ def export_c(
     `FirstOrderLag`) or none, and the laws `Skyhook`, `OnOffSkyhook`, `Groundhook`,
     `OnOffGroundhook`, `Hybrid`, `ClippedOptimal` (its damper force measured or the
     observer's), `ContinuousClippedOptimal` (both clipped-optimal laws on a measured
-    state: no estimator gives the positions) and `ForceFeedback` (`linear` or
-    `mlp`), hard or relaxed. Anything else raises `NotImplementedError` naming its
+    state or on the estimator's, its positions included) and `ForceFeedback`
+    (`linear` or `mlp`), hard or relaxed. Anything else raises `NotImplementedError` naming its
     class and what is supported; `export_stablehlo` exports any controller for an
     XLA runtime.
 

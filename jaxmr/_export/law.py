@@ -240,8 +240,8 @@ static double law_command(const readings *r, const observer *o)
 
 def _primary(law, indent: str) -> str:
     """The primary controller's force f_c = -K x [N] of a clipped-optimal law on the
-    measured state x = (z_s, v_s, z_u, v_u), a C expression (continued lines start
-    with `indent`)."""
+    state x = (z_s, v_s, z_u, v_u) (measured or estimated), a C expression (continued
+    lines start with `indent`)."""
     terms = f"\n{indent}+ ".join(
         f"{literal(k)} * r->{name}"
         for k, name in zip(_gain_row(law), QUARTER_CAR_STATE)

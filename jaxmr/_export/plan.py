@@ -5,6 +5,7 @@ import dataclasses
 from collections.abc import Sequence
 
 from .._control import ObserverBasedController, Sensors
+from .._control.state_space import POSITIONS
 from .syntax import check_identifier
 
 # The quarter car's realistic sensors (`realistic_sensors(QuarterCar)`), the default
@@ -82,6 +83,8 @@ def plan(controller: ObserverBasedController, measurements) -> Plan:
                 f"`measurements` has {inputs}."
             )
         readings |= set(ESTIMATES)
+        if controller.estimates_positions:
+            readings |= set(POSITIONS)
         if "wheel_acceleration" in inputs:
             readings.add("wheel_acceleration")
     if controller.observer is not None:
