@@ -29,9 +29,15 @@ run on every motion at the lowest and highest current):
 Speedups are throughput ratios, simulated seconds per wall second: compilation excluded
 (`speedup_vs_*`) and included (`*_with_compile`: compile + one run). The headline ones
 compare like with like: jaxmr's shared-state path with the baselines' shared forms;
-`*_no_sharing` compares every method solving every run. The NumPy/SciPy baselines run
-on one core (NumPy does not thread these element-wise operations), numba and XLA on
-both; the CPU times are in the JSON.
+`*_no_sharing` compares every method solving every run. jaxmr runs as its documentation
+sets up a CPU user, `jaxmr.devices.configure_cpu()`: one XLA device per core (`sweep`
+splits its batch over them; `--host-devices` to change) against numba on as many
+threads (`--numba-threads`, default 2). Reported apart: jaxmr on one device (a fresh
+process, `jaxmr_fixedstep_one_device`) against numba on one thread
+(`speedup_vs_numba_one_device`), and its torque against the devices' (bit for bit,
+`one_device_equal_bitwise`). The NumPy/SciPy baselines run on one core (NumPy does not
+thread these element-wise operations): their CPU-time ratios (`*_cpu_time`, process
+CPU time of all threads) are in the JSON beside the wall-time ones.
 
 Run from the repository root (numba: `pip install -e .[bench]`):
 
@@ -103,8 +109,10 @@ def parse_args():
     p.add_argument(
         "--host-devices",
         type=int,
-        default=1,
-        help="XLA host devices (>1 lets sweep shard across CPU cores; default 1)",
+        default=None,
+        help="XLA CPU devices for jaxmr, over which sweep splits its batch (default: "
+        "one per core, as jaxmr.devices.configure_cpu() sets up a CPU user; 1: one "
+        "device). A one-device run is measured apart in a fresh process either way",
     )
     p.add_argument(
         "--full-reference",
@@ -140,18 +148,20 @@ def parse_args():
 
 
 ARGS = parse_args()
-if ARGS.host_devices > 1:  # must happen before jax is imported
-    os.environ["XLA_FLAGS"] = (
-        os.environ.get("XLA_FLAGS", "")
-        + f" --xla_force_host_platform_device_count={ARGS.host_devices}"
-    )
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # this checkout's jaxmr
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _processes import initialize, launch  # noqa: E402
 
+import jaxmr  # noqa: E402  (does not start JAX's backend)
+
 if ARGS.worker is not None:  # before anything touches a JAX backend
+    # Its XLA flags (devices, the small-loop option) come from `launch`.
     initialize(ARGS.processes, ARGS.worker, ARGS.port)
+elif ARGS.processes == 1:
+    # jaxmr as its documentation sets up a CPU user: one XLA device per core (sweep
+    # splits its batch over them) and each simulation loop one kernel.
+    jaxmr.devices.configure_cpu(devices=ARGS.host_devices)
 
 import jax  # noqa: E402
 
@@ -164,8 +174,6 @@ import numpy as np  # noqa: E402
 import scipy  # noqa: E402
 from _report import write_figures  # noqa: E402
 from jax.sharding import Mesh, NamedSharding, PartitionSpec  # noqa: E402
-
-import jaxmr  # noqa: E402
 
 
 def check_preset_numbers():
@@ -391,8 +399,10 @@ def grid(runs: int, duration: float):
 
 
 def process_worker(args):
-    """One process of the process comparison: the fixed-step grid, compiled then
-    timed (median of `repeats`), every process getting every run's torque."""
+    """One process of the process comparison, or the one-device run of the main
+    benchmark: the fixed-step grid (torque only), compiled then timed `repeats` times
+    (median, min and the CPU time of the fastest), every process getting every run's
+    torque."""
     duration = 2.0 if args.quick else 10.0
     ts = jnp.linspace(0.0, duration, int(round(duration * 1000)) + 1)
     motion_params, currents, *_ = grid(args.runs, duration)
@@ -407,18 +417,24 @@ def process_worker(args):
         return jax.block_until_ready(sol.force)
 
     t0 = time.perf_counter()
-    call()
+    force = call()
     first = time.perf_counter() - t0
-    runs = []
+    runs, cpus = [], []
     for _ in range(args.repeats):
+        c0 = time.process_time()
         t0 = time.perf_counter()
         force = call()
         runs.append(time.perf_counter() - t0)
+        cpus.append(time.process_time() - c0)
     if jax.process_index() == 0:
+        best = int(np.argmin(runs))
         np.savez(
             args.out,
             first_s=first,
             run_s=statistics.median(runs),
+            run_min_s=runs[best],
+            run_all_s=np.array(runs),
+            run_cpu_s=cpus[best],
             force=np.asarray(force),
             devices=len(jax.devices()),
         )
@@ -468,6 +484,20 @@ def process_comparison(args):
     Path(args.json).write_text(text)
 
 
+def one_device_run(args, substeps: int) -> dict:
+    """The timed jaxmr sweep (torque only) in a fresh process with one XLA device and
+    the same flags otherwise: what the figures were before sweeps used every core."""
+    import tempfile
+
+    passed = ["--json", args.json, "--runs", str(args.runs), "--repeats",
+              str(args.repeats), "--substeps", str(substeps)] + (
+        ["--quick"] if args.quick else [])  # fmt: skip
+    with tempfile.TemporaryDirectory() as folder:
+        return launch(
+            str(Path(__file__).resolve()), 1, passed, Path(folder) / "one.npz"
+        )
+
+
 def main():
     args = ARGS
     if args.worker is not None:
@@ -476,7 +506,7 @@ def main():
         return process_comparison(args)
     check_preset_numbers()
     try:
-        import numba  # noqa: F401  (the numba baseline; imported by _sweep_baselines)
+        import numba  # the numba baseline (its kernels are in _sweep_baselines)
     except ImportError:
         raise SystemExit(
             "simulate_sweep.py needs numba for its baseline: pip install -e .[bench]"
@@ -714,6 +744,15 @@ def main():
     )
     sol, first_s = wall(jaxmr_fast)
     jaxmr_force = np.asarray(sol.force)  # (motions, currents, times)
+    # Where the torque lives: split over the devices along the motions when sweep
+    # shards its batch (each device solving its own motions).
+    force_sharding = {
+        "devices": len(sol.force.sharding.device_set),
+        "spec": str(getattr(sol.force.sharding, "spec", None)),
+        "shard_shapes": sorted(
+            {tuple(s.data.shape) for s in sol.force.addressable_shards}
+        ),
+    }
     del sol
     err_jaxmr = grid_error(jaxmr_force)
     _, first_nothrow_s = wall(jaxmr_fast, False)
@@ -751,6 +790,14 @@ def main():
     shared_kernel_vs_kernel = float(np.abs(shared_kernel_torque - kernel_torque).max())
     del kernel_torque, shared_kernel_torque
 
+    def numba_one_thread(kernel, *kernel_args):
+        """The numba kernel on one thread: the figure beside jaxmr on one device."""
+        numba.set_num_threads(1)
+        try:
+            return kernel(*kernel_args)
+        finally:
+            numba.set_num_threads(args.numba_threads)
+
     # --- timing: interleaved rounds, so that load from elsewhere hits all alike ----------
     timing = interleaved(
         {
@@ -761,6 +808,9 @@ def main():
             "kernel": lambda: kernel_compiled(*k_args),
             "shared_kernel": lambda: shared_kernel_compiled(*m_args),
             "numba": lambda: nb_shared(mot_a, mot_f, currents, ts_np, nb_k),
+            "numba_one_thread": lambda: numba_one_thread(
+                nb_shared, mot_a, mot_f, currents, ts_np, nb_k
+            ),
             "numba_no_sharing": lambda: nb_runs(run_a, run_f, run_i, ts_np, nb_k_ns),
             "numpy_rk4": lambda: np_shared(np_k),
             "numpy_rk4_no_sharing": lambda: np_runs(np_k_ns),
@@ -771,6 +821,15 @@ def main():
             "scipy_loop": lambda: scipy_loop(scipy_best["method"], scipy_best["rtol"]),
         },
         args.repeats,
+    )
+
+    # --- jaxmr on one XLA device: a fresh process (the device count is fixed at start) --
+    one_device = one_device_run(args, substeps)
+    one_vs_devices = float(np.abs(one_device["force"] - jaxmr_force).max())
+    print(
+        f"jaxmr on one device: {one_device['run_min_s']:.2f} s (cpu "
+        f"{one_device['run_cpu_s']:.2f} s); torque vs {jax.device_count()} devices: "
+        f"{one_vs_devices:.1e} N·m"
     )
 
     # --- figures per method ----------------------------------------------------------------
@@ -815,6 +874,21 @@ def main():
             shares_states=False,
             **jaxmr_details,
         ),
+        "jaxmr_fixedstep_one_device": method_entry(
+            {
+                "min_s": float(one_device["run_min_s"]),
+                "median_s": float(one_device["run_s"]),
+                "all_s": [float(t) for t in one_device["run_all_s"]],
+                "cpu_s": float(one_device["run_cpu_s"]),
+            },
+            sim_seconds,
+            grid_error(one_device["force"]),
+            float(one_device["first_s"] - one_device["run_s"]),
+            first_call_s=float(one_device["first_s"]),
+            shares_states=shared_states,
+            devices=int(one_device["devices"]),
+            **jaxmr_details,
+        ),
         "scan_kernel_shared": method_entry(
             timing["shared_kernel"],
             sim_seconds,
@@ -840,6 +914,15 @@ def main():
             shares_states=True,
             substeps=nb_k,
             threads=args.numba_threads,
+        ),
+        "numba_one_thread": method_entry(
+            timing["numba_one_thread"],
+            sim_seconds,
+            nb_errors[str(nb_k)],
+            nb_shared_compile_s,
+            shares_states=True,
+            substeps=nb_k,
+            threads=1,
         ),
         "numba_no_sharing": method_entry(
             timing["numba_no_sharing"],
@@ -936,6 +1019,26 @@ def main():
         / methods[default]["run_cpu_s"],
         "speedup_vs_numba_cpu_time": methods[f"numba{same}"]["run_cpu_s"]
         / methods[default]["run_cpu_s"],
+        # Reported apart: jaxmr on one XLA device (a fresh process) against numba on
+        # one thread, and against numba on its threads (the pairing before sweeps
+        # used every core); the gain from the devices; the two torques compared.
+        "jaxmr_devices": jax.device_count(),
+        "speedup_vs_numba_one_device": speedup(
+            "jaxmr_fixedstep_one_device", "numba_one_thread"
+        ),
+        "speedup_vs_numba_one_device_cpu_time": methods["numba_one_thread"]["run_cpu_s"]
+        / methods["jaxmr_fixedstep_one_device"]["run_cpu_s"],
+        "speedup_vs_numba_jaxmr_one_device": speedup(
+            "jaxmr_fixedstep_one_device", f"numba{same}"
+        ),
+        "speedup_devices_over_one_device": speedup(
+            default, "jaxmr_fixedstep_one_device"
+        ),
+        "one_device_vs_devices_max_abs_Nm": one_vs_devices,
+        "one_device_equal_bitwise": bool(
+            np.array_equal(one_device["force"], jaxmr_force)
+        ),
+        "jaxmr_output_sharding": force_sharding,
         # The old baseline, one run at a time with a Python right-hand side.
         "speedup_vs_scipy_loop": speedup(default, "scipy_loop"),
         "speedup_vs_scipy_loop_no_sharing": speedup(no_sharing, "scipy_loop"),
@@ -1019,7 +1122,8 @@ def main():
         },
         "timing": f"run times are the min of {args.repeats} calls after the first "
         "(compile) call, timed in interleaved rounds (every method once per round; then "
-        "the batching configurations), jax outputs with block_until_ready; "
+        "the batching configurations; jaxmr_fixedstep_one_device in a fresh process "
+        "after them), jax outputs with block_until_ready; "
         "throughput = simulated s / run s; with compile = simulated s / (compile s + "
         "run s), compile s = first call - median run for jaxmr, lower().compile() for "
         "the scan kernels, the eager compilation from the signature for numba, 0 for "
@@ -1040,7 +1144,7 @@ def main():
         },
         "device": device_description(),
         "git": git_state(),
-        "host_devices": args.host_devices,
+        "host_devices": jax.device_count(),
         "loadavg_start": load_start,
     }
     print(
@@ -1129,9 +1233,11 @@ def main():
         "jaxmr_fixedstep_throw_false": f"jaxmr sweep FixedStep({substeps}), throw=False",
         "jaxmr_fixedstep_full_solution": f"jaxmr sweep FixedStep({substeps}), Solution",
         "jaxmr_fixedstep_no_sharing": f"jaxmr sweep FixedStep({substeps}), per run",
+        "jaxmr_fixedstep_one_device": f"jaxmr sweep FixedStep({substeps}), 1 device",
         "scan_kernel_shared": "lax.scan RK4 kernel, shared z",
         "scan_kernel": "lax.scan RK4 kernel, per run",
         "numba": f"numba RK4({nb_k}), shared z",
+        "numba_one_thread": f"numba RK4({nb_k}), shared z, 1 thread",
         "numba_no_sharing": f"numba RK4({nb_k_ns}), per run",
         "numpy_rk4": f"NumPy RK4({np_k}) over the batch, shared z",
         "numpy_rk4_no_sharing": f"NumPy RK4({np_k_ns}) over the batch, per run",
@@ -1181,10 +1287,22 @@ def main():
         f"{r['speedup_vs_scipy_vectorised_no_sharing_with_compile']:.1f})"
     )
     print(
-        f"speedup_vs_numba            {r['speedup_vs_numba']:.2f} (goal >= 1; with "
+        f"speedup_vs_numba            {r['speedup_vs_numba']:.2f} (goal >= 1; "
+        f"{r['jaxmr_devices']} XLA devices, numba {args.numba_threads} threads; with "
         f"compile {r['speedup_vs_numba_with_compile']:.2f}; without sharing "
         f"{r['speedup_vs_numba_no_sharing']:.2f}, with compile "
-        f"{r['speedup_vs_numba_no_sharing_with_compile']:.2f})"
+        f"{r['speedup_vs_numba_no_sharing_with_compile']:.2f}; CPU time ratio "
+        f"{r['speedup_vs_numba_cpu_time']:.2f})"
+    )
+    print(
+        f"one device                  {r['speedup_vs_numba_one_device']:.2f} against "
+        f"numba on 1 thread (CPU time ratio "
+        f"{r['speedup_vs_numba_one_device_cpu_time']:.2f}), "
+        f"{r['speedup_vs_numba_jaxmr_one_device']:.2f} against numba on "
+        f"{args.numba_threads}; the devices ran {r['speedup_devices_over_one_device']:.2f}x "
+        f"faster; torque equal bit for bit: {r['one_device_equal_bitwise']} (max "
+        f"{r['one_device_vs_devices_max_abs_Nm']:.1e} N·m); output split as "
+        f"{r['jaxmr_output_sharding']}"
     )
     print(
         f"speedup_vs_scipy_loop       {r['speedup_vs_scipy_loop']:.0f} (one run at a "

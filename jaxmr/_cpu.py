@@ -31,6 +31,16 @@ _DEVICE_COUNT = "xla_force_host_platform_device_count"
 _EXTRA_OPTIONS = "xla_backend_extra_options"
 
 
+def usable_cores() -> int:
+    """The CPU cores this process may run on: its affinity mask where the platform
+    has one (a container or `taskset` limits it; `os.cpu_count()` counts the whole
+    machine), else `os.cpu_count()`."""
+    try:
+        return max(len(os.sched_getaffinity(0)), 1)
+    except (AttributeError, OSError):  # macOS and Windows have no affinity call
+        return os.cpu_count() or 1
+
+
 def configure_cpu(devices: int | None = None) -> str:
     """Set the XLA flags under which jaxmr runs fastest on a CPU; call it first.
 
@@ -46,8 +56,8 @@ def configure_cpu(devices: int | None = None) -> str:
 
     **Arguments:**
 
-    - `devices`: how many XLA CPU devices to make; `None` (default): one per core, at
-      most 8; `1`: leave the device count alone (a single device).
+    - `devices`: how many XLA CPU devices to make; `None` (default): one per core this
+      process may run on (its CPU affinity), at most 8; `1`: leave the device count alone (a single device).
 
     **Returns:** the `XLA_FLAGS` now set.
 
@@ -56,7 +66,7 @@ def configure_cpu(devices: int | None = None) -> str:
     this first); `ValueError` for a `devices` below 1.
     """
     if devices is None:
-        devices = min(os.cpu_count() or 1, 8)
+        devices = min(usable_cores(), 8)
     if not isinstance(devices, int) or isinstance(devices, bool) or devices < 1:
         raise ValueError(f"`devices` must be a positive integer, got {devices!r}.")
     flags = os.environ.get("XLA_FLAGS", "")

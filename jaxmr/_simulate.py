@@ -234,11 +234,14 @@ def _finish(damper, current, ts, x, v, ys, result, num_steps, in_tables) -> Solu
     )
 
 
-def _run_shared(damper, motion, currents, ts, integrator, throw: bool = True):
+def _run_shared(
+    damper, motion, currents, ts, integrator, throw: bool = True, keep=None
+):
     """The runs of one damper and motion at every constant current of the batch
     `currents` (leading axis), for a damper whose state equation does not depend on the
     current (`_state_ignores_current`): the states are solved once and the force is
-    evaluated at each current. The same solutions as `_run` per current, stacked."""
+    evaluated at each current. The same solutions as `_run` per current, stacked;
+    `keep` as in `_sweep_flat`."""
     # Every run's input checks, as `_run` does them; the solve uses the times guarded
     # by the first current's (the motion's checks are in all of them).
     ts_each, in_tables = jax.vmap(
@@ -248,9 +251,33 @@ def _run_shared(damper, motion, currents, ts, integrator, throw: bool = True):
     x, v, ys, result, num_steps = _solve(
         damper, motion, first, ts_each[0], integrator, None
     )
-    return jax.vmap(
-        lambda c, t, ok: _finish(damper, c, t, x, v, ys, result, num_steps, ok)
-    )(currents, ts_each, in_tables)
+
+    def at_current(k):
+        c, t, ok = jax.tree.map(lambda a: a[k], (currents, ts_each, in_tables))
+        sol = _finish(damper, c, t, x, v, ys, result, num_steps, ok)
+        return sol if keep is None else sol.only(keep)
+
+    # A loop over the currents, not a vmap: vmapped, XLA fused the motion (its sin and
+    # cos at every output time) into each current's force and again into its
+    # finiteness check, so it ran twice per current (an optimization barrier does not
+    # survive XLA's CPU pipeline). Out of a loop the motion is computed once, before
+    # it. Each current's solution is written in place into the stacked one (under the
+    # sweep's vmap, already in its (pair, current, ...) order: a `lax.map` stacked
+    # the currents first and cost a transposed copy of the whole output). The brake
+    # sweep of benchmarks/simulate_sweep.py (64 motions x 16 currents, torque only)
+    # took half the CPU time; the results are the same to the bit.
+    n = in_tables.shape[0]
+    template, static = eqx.partition(
+        eqx.filter_eval_shape(at_current, 0),
+        lambda a: isinstance(a, jax.ShapeDtypeStruct),
+    )
+
+    def write(k, out):
+        sol = eqx.filter(at_current(k), eqx.is_array)
+        return jax.tree.map(lambda o, a: o.at[k].set(a), out, sol)
+
+    out = jax.tree.map(lambda a: jnp.zeros((n, *a.shape), a.dtype), template)
+    return eqx.combine(jax.lax.fori_loop(0, n, write, out), static)
 
 
 def _state_ignores_current(damper: Damper, dtype) -> bool:
@@ -263,6 +290,31 @@ def _state_ignores_current(damper: Damper, dtype) -> bool:
     the force's gains (the SAS brake's alpha and c0) leaves the state alone; a law on
     `beta`, or current dynamics (`FirstOrderLag`), do not.
     """
+    arrays, static = eqx.partition(damper, eqx.is_array)
+    # The answer depends only on what the jaxpr is traced from: the structure, the
+    # static fields and the arrays' shapes and types. Remembered by those (tracing
+    # took ~5 ms of every `sweep` call); a model with unhashable static fields is
+    # traced each time.
+    leaves, tree = jax.tree.flatten(arrays)
+    key = (tree, static, tuple((a.shape, a.dtype) for a in leaves), jnp.dtype(dtype))
+    try:
+        return _IGNORES_CURRENT[key]
+    except TypeError:  # unhashable
+        return _trace_ignores_current(damper, dtype)
+    except KeyError:
+        pass
+    if len(_IGNORES_CURRENT) >= 256:
+        _IGNORES_CURRENT.clear()
+    _IGNORES_CURRENT[key] = answer = _trace_ignores_current(damper, dtype)
+    return answer
+
+
+# `_state_ignores_current`'s answers, by the model's structure and array types.
+_IGNORES_CURRENT: dict = {}
+
+
+def _trace_ignores_current(damper: Damper, dtype) -> bool:
+    """`_state_ignores_current`, from the model's jaxpr."""
     arrays, static = eqx.partition(damper, eqx.is_array)
     scalar = jnp.zeros((), dtype)
     state = jnp.zeros(len(damper.state_names), dtype)
@@ -407,17 +459,27 @@ def _stack(items, what: str):
     items = list(items)
     if not items:
         raise ValueError(f"`{what}` is an empty sequence.")
-    structures = {jax.tree.structure(eqx.filter(m, eqx.is_array)) for m in items}
+    arrays = [eqx.filter(m, eqx.is_array) for m in items]
+    structures = {jax.tree.structure(a) for a in arrays}
     if len(structures) != 1:
         raise ValueError(
             f"every element of `{what}` must be of the same type with the same "
             "structure (e.g. all Sine, or all BoucWen with the same parameters given as "
             f"laws); got {sorted({type(m).__name__ for m in items})}."
         )
-    arrays = [eqx.filter(m, eqx.is_array) for m in items]
     static = eqx.filter(items[0], eqx.is_array, inverse=True)
+
+    def stack(*xs):
+        # On the host where every member has a value of a fixed (not weak) type: one
+        # numpy copy, not an XLA call over every member (a sweep's members are many
+        # scalars: ~5 ms of `sweep`'s ~15 ms of Python per call on 64 motions x 16
+        # currents went here). Traced or weakly typed members keep `jnp.stack`.
+        if is_concrete(xs) and not any(getattr(x, "weak_type", False) for x in xs):
+            return np.stack([np.asarray(x) for x in xs])
+        return jnp.stack(xs)
+
     try:
-        stacked = jax.tree.map(lambda *xs: jnp.stack(xs), *arrays)
+        stacked = jax.tree.map(stack, *arrays)
     except ValueError as e:
         raise ValueError(
             f"the elements of `{what}` have arrays of different shapes: {e}"
@@ -518,7 +580,15 @@ def _sweep(
     runs = int(np.prod(shape[:-1] if shared else shape))
     sol = jax.tree.map(lambda a: a[:runs], sol)
     if throw:
-        sol = sol.result.error_if(sol, jnp.any(sol.result != RESULTS.successful))
+        # Only the result codes go through the check: guarding the whole solution
+        # put it through the check's conditional, which gathered a batch split over
+        # several devices onto the first (the brake sweep on 2 CPU devices: ~40 % more
+        # CPU time, and its output no longer split). The call still raises, as the
+        # guarded codes are one of its outputs.
+        result = sol.result.error_if(
+            sol.result, jnp.any(sol.result != RESULTS.successful)
+        )
+        sol = eqx.tree_at(lambda s: s.result, sol, result)
     # Shared: each (device, motion) pair carries all the currents, on a second axis.
     lead = 2 if shared else 1
     return jax.tree.map(lambda a: a.reshape(shape + a.shape[lead:]), sol)
@@ -545,7 +615,7 @@ def _sweep_flat(
         # throw=False: a current outside a table is this run's result code, not an
         # error that stops every run.
         if shared:
-            sol = _run_shared(d, m, c, ts, integrator, throw=throw)
+            sol = _run_shared(d, m, c, ts, integrator, throw=throw, keep=keep)
         else:
             sol = _run(d, m, c, ts, integrator, None, throw=throw)
         # Dropped here, per run, so that XLA never writes them: in a large shared

@@ -60,6 +60,25 @@ def test_a_call_after_the_backend_started_raises_and_leaves_no_flags():
     assert _run(code, None).split() == ["True", "None"]
 
 
+def test_the_default_count_follows_the_cores_the_process_may_use(monkeypatch):
+    """Pinned to one core of a larger machine (`taskset`, a container), the default
+    is one device, not one per core of the machine; no affinity call (macOS,
+    Windows): the machine's count."""
+    from jaxmr import _cpu
+
+    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {3}, raising=False)
+    monkeypatch.setattr(os, "cpu_count", lambda: 16)
+    assert _cpu.usable_cores() == 1
+    monkeypatch.delattr(os, "sched_getaffinity", raising=False)
+    assert _cpu.usable_cores() == 16
+    # The default count (no device flag: nothing to check against a started
+    # backend) is the usable cores', here 1: only the loop option is added.
+    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {3}, raising=False)
+    monkeypatch.setenv("XLA_FLAGS", "")  # (restored after the test)
+    flags = jaxmr.devices.configure_cpu()
+    assert "xla_force_host_platform_device_count" not in flags
+
+
 def test_bad_device_count():
     with pytest.raises(ValueError, match="positive integer"):
         jaxmr.devices.configure_cpu(devices=0)

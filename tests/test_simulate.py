@@ -184,6 +184,8 @@ def test_sweep_shards_over_several_devices():
         sol = jaxmr.sweep(lagged, m, currents, ts, integrator=fixed)
         shards = {d for d in sol.force.sharding.device_set}
         assert len(shards) == 2, shards
+        # Split, each device holding its own runs (not gathered whole onto both).
+        assert not sol.force.sharding.is_fully_replicated, sol.force.sharding
         for k, c in enumerate(currents):
             one = jaxmr.simulate(lagged, m, c, ts, integrator=fixed)
             np.testing.assert_allclose(sol.force[k], one.force, rtol=1e-10, atol=1e-13)
@@ -195,6 +197,8 @@ def test_sweep_shards_over_several_devices():
         )
         shards = {d for d in sol.force.sharding.device_set}
         assert len(shards) == 2, shards
+        # Split, each device holding its own runs (not gathered whole onto both).
+        assert not sol.force.sharding.is_fully_replicated, sol.force.sharding
         for j, motion in enumerate(motions):
             for k, c in enumerate(currents):
                 one = jaxmr.simulate(
