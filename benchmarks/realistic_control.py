@@ -66,6 +66,12 @@ class Settings:
     # The sensors' noise: the training draw (`tune`'s `sensor_key`) and the fresh one.
     train_noise_seed: int = 29
     fresh_noise_seed: int = 61029
+    # The paired check of (b) against (c) (added in session 13, after the headline
+    # figures above were first measured; the settings were not changed): a second,
+    # larger fresh set, each road read through several noise draws. Never used
+    # anywhere before; drawn after everything is frozen.
+    paired_seeds: tuple = tuple(range(63000, 63024))
+    paired_noise_seeds: tuple = (63029, 63030, 63031)
     # The rich law and its tuning (`quarter_car_control.py`'s, seed 0).
     rich_steps: int = 80
     rich_rate: float = 0.03
@@ -82,6 +88,8 @@ QUICK = dataclasses.replace(
     train_seeds=FULL.train_seeds[:2],
     dev_seeds=FULL.dev_seeds[:2],
     fresh_seeds=FULL.fresh_seeds[:2],
+    paired_seeds=FULL.paired_seeds[:2],
+    paired_noise_seeds=FULL.paired_noise_seeds[:2],
     rich_steps=4,
     check_every=2,
 )
@@ -203,6 +211,25 @@ def main():
     def gain(name):
         return 1.0 - a_w[name] / a_w["best_constant"]
 
+    # The paired check: (b) and (c) on the same roads through the same noise, per
+    # road (the noise draws averaged), as a share of the best constant's mean a_w.
+    paired = roads(cfg.paired_seeds, T)
+    constant = jaxmr.evaluate(
+        car, jaxmr.ConstantCurrent(best_constant, I_MAX), paired, T
+    )["comfort"]
+    per_draw = {"joint": [], "deployed": []}
+    for seed in cfg.paired_noise_seeds:
+        draw = dict(sensors=sensors, sensor_key=jax.random.key(seed))
+        for name, controller in (("joint", joint.controller), ("deployed", deployed)):
+            scores = jaxmr.evaluate(car, controller, paired, T, **draw)["comfort"]
+            per_draw[name].append(np.asarray(scores))
+    advantage = (
+        np.mean(per_draw["deployed"], axis=0) - np.mean(per_draw["joint"], axis=0)
+    ) / np.mean(constant)
+    draw_advantage = (
+        np.mean(per_draw["deployed"], axis=1) - np.mean(per_draw["joint"], axis=1)
+    ) / np.mean(constant)
+
     estimator = joint.controller.estimator
     figures = {
         "quick": args.quick,
@@ -212,6 +239,25 @@ def main():
         # How much of (a)'s gain the jointly tuned realistic controller keeps.
         "share_of_perfect_kept_joint": gain("realistic_joint") / gain("perfect"),
         "share_of_perfect_kept_deployed": gain("realistic_deployed") / gain("perfect"),
+        # (b) - (c) in comfort gain on the paired set: the mean over its roads, the
+        # standard error of that mean (over roads), the share of roads where (b) is
+        # better, and the difference for each noise draw (all roads).
+        "joint_minus_deployed_paired_mean": float(np.mean(advantage)),
+        "joint_minus_deployed_paired_se": float(
+            np.std(advantage, ddof=1) / np.sqrt(advantage.size)
+        )
+        if advantage.size > 1
+        else float("nan"),
+        # The mean over its standard error: (b) is better than (c) beyond the roads'
+        # scatter where this is at least 2.
+        "joint_minus_deployed_paired_z": float(
+            np.mean(advantage) / (np.std(advantage, ddof=1) / np.sqrt(advantage.size))
+        )
+        if advantage.size > 1
+        else float("nan"),
+        "joint_better_share_of_roads": float(np.mean(advantage > 0)),
+        "joint_minus_deployed_per_noise_draw": [float(d) for d in draw_advantage],
+        "paired_roads": int(advantage.size),
         "a_w_fresh_m_s2": a_w,
         "best_constant_A": best_constant,
         "dev_constants_a_w_m_s2": {str(c): v for c, v in dev_constants.items()},

@@ -280,8 +280,10 @@ def simulate_system(
       non-finite solve raises with what to change (the substeps to try, the fitted
       range).
     - `unroll`: substeps unrolled in the compiled loop (default 1). Unrolled, XLA
-      fuses across substeps and the reverse pass loses a nested loop: `jaxmr.tune`'s
-      gradient ran 1.5-2x faster with 4 (12 roads, 2 cores). The forward pass gains
+      fuses across substeps and the reverse pass loses a nested loop, but with
+      `jaxmr.devices.configure_cpu`'s flags `jaxmr.tune`'s gradient gained nothing
+      with 4 (as fast for a skyhook, 4x slower for an observer-based controller on
+      realistic sensors) and compiled 1.7-2.3x longer. The forward pass gains
       nothing and can lose much: the Bouc–Wen benchmark oscillator's residual (20
       substeps, a long sampled excitation) ran 10x slower with 8, its forward-mode
       Jacobian 2.6x, and compiling took 3-6x longer.

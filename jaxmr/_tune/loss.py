@@ -60,9 +60,10 @@ def _one_run(u, system, controller, run, setup: Setup, noise=None):
         sampling=setup.sampling,
         integrator=setup.integrator,
         throw=False,
-        # Unrolled substeps: the reverse pass of tuning's gradient ran 1.5-2x faster
-        # (`simulate_system`); past 8 the compile time is not worth it.
-        unroll=min(setup.integrator.substeps, 8),
+        # Substeps not unrolled (`simulate_system`'s default): with the CPU flags of
+        # `configure_cpu`, unrolling 4 compiled the gradient 1.7-2.3x longer and ran
+        # it no faster (skyhook, 12 roads of 3 s: 0.14 s against 0.12 s) or 4x
+        # slower (an observer-based controller on realistic sensors).
         **sensing(noise, index),
     )
     return setup.objective(solution)
