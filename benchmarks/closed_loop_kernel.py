@@ -366,8 +366,18 @@ def closed_loop_speed(duration=8.0, roads=12, repeats=3, specialised=True) -> di
     steps = (jaxmr.Sampling(dt=DT, delay=DELAY), jaxmr.FixedStep(SUBSTEPS))
     # Skyhook inverts the damper: perfect information, as the kernels have it.
     indexed = (batch, jnp.arange(roads))  # each road with its index, as `evaluate`
+    # steps=False: the substeps are given, so nothing is read to choose them.
     add(
-        "jaxmr_forward", _evaluate, car, law, indexed, duration, metrics, *steps, ORACLE
+        "jaxmr_forward",
+        _evaluate,
+        car,
+        law,
+        indexed,
+        duration,
+        metrics,
+        *steps,
+        ORACLE,
+        False,
     )
     setup = Setup(True, as_tuple_where(_c_sky), jaxmr.metrics.comfort, duration, *steps)
     padded = road_batch(batch)
