@@ -474,6 +474,28 @@ def test_parsimony_picks_the_lowest_median_and_the_simpler_on_a_tie():
         parsimony(["spencer"], [spencer], tolerance=-0.1)
 
 
+def test_parsimony_statistics_are_what_they_say():
+    # Five held-out records, one of them badly predicted (0.40).
+    errors = np.array([0.10, 0.20, 0.05, 0.40, 0.10])
+    expected = {
+        "median": 0.10,
+        "mean": 0.17,
+        "geometric_mean": float(np.exp(np.mean(np.log(errors)))),  # about 0.132
+        "trimmed_mean": 0.1125,  # (0.10 + 0.20 + 0.05 + 0.10) / 4: no 0.40
+    }
+    for statistic, value in expected.items():
+        rule = parsimony(["dahl"], [errors], statistic=statistic)
+        assert rule.statistic == statistic
+        # Exact arithmetic on five numbers: float64 rounding only.
+        np.testing.assert_allclose(rule.score, [value], rtol=1e-12)
+        np.testing.assert_allclose(rule.median_nrmse, [0.10], rtol=1e-12)
+    # With fewer than 3 records the trimmed mean is the mean (nothing is dropped).
+    rule = parsimony(["dahl"], [[0.1, 0.3]], statistic="trimmed_mean")
+    np.testing.assert_allclose(rule.score, [0.2], rtol=1e-12)
+    with pytest.raises(ValueError, match="statistic"):
+        parsimony(["dahl"], [errors], statistic="mode")
+
+
 def test_parsimony_prefers_no_lag_and_never_a_diverged_model():
     errors = np.array([0.05, 0.07, 0.06])
     rule = parsimony(["spencer_lag", "spencer"], [errors, errors])
@@ -568,15 +590,35 @@ def test_select_model_and_the_command_line_share_the_default_candidates(monkeypa
         assert seen[-1] == jaxmr.templates.default_candidates(experiments)
 
 
+def _dahl_brake(experiments):
+    """The brake's records (motion, currents, sampling) with the torque of a Dahl brake
+    instead, 1 % noise: k_x and k_w linear in the current (as the template's laws),
+    z saturating over about 2° (ρ = 30 1/rad) of the ±3.5° stroke. Simulated with the
+    fits' own steps (`predict_all`): these are the data, not what is tested."""
+    truth = jaxmr.Dahl(
+        k_x=jaxmr.LinearLaw(0.01, 0.07), k_w=jaxmr.LinearLaw(1.0, 0.3), rho=30.0
+    )
+    rng = np.random.default_rng(1)
+    return [
+        jaxmr.data.Experiment(
+            e.t, e.x, e.v, e.current,
+            torque + NOISE * np.std(torque) * rng.standard_normal(torque.shape),
+            name=e.name, rotary=True,
+        )
+        for e, torque in zip(experiments, predict_all(truth, experiments))
+    ]  # fmt: skip
+
+
 def test_selection_finds_the_family_that_made_the_data(brake):
-    """Small records, few steps: Dahl data (three 1-cycle runs, 1 % noise) → dahl
-    over Bouc–Wen (no better on held-out data, so parsimony keeps the simpler);
-    Bouc–Wen data (the brake) → bouc_wen over dahl (clearly better)."""
+    """Small records, few steps: Dahl data (the brake's three 1-cycle records, a
+    Dahl brake's torque, 1 % noise) → dahl over Bouc–Wen (no better on held-out
+    data, so parsimony keeps the simpler); Bouc–Wen data (the brake) → bouc_wen over
+    dahl (clearly better). Both data sets have the brake's shapes and currents, so
+    each candidate's fits compile once for both selections."""
     options = dict(max_steps=15, statistics_refinement=1, screen_steps=10)
-    runs = dahl_runs((4.0, 5.0, 6.0), (3.0, 3.0, 3.0))
-    dahl = jaxmr.select_model(["bouc_wen", "dahl"], runs, **options)
-    assert dahl.name == "dahl", dahl.parsimony
     _, _, experiments = brake
+    dahl = jaxmr.select_model(["bouc_wen", "dahl"], _dahl_brake(experiments), **options)
+    assert dahl.name == "dahl", dahl.parsimony
     bouc_wen = jaxmr.select_model(["dahl", "bouc_wen"], experiments, **options)
     assert bouc_wen.name == "bouc_wen", bouc_wen.parsimony
     assert bouc_wen.parsimony.best == "bouc_wen"
