@@ -31,7 +31,11 @@ records), this measures:
 
 The headline figures (`results/generalisation.json`) come from one process per
 dataset, each `--small --no-cv --max-steps 100 --datasets D --json /tmp/gen_D.json`,
-merged with `--analyse /tmp/gen_*.json --json results/generalisation.json`.
+merged with `--analyse /tmp/gen_*.json --json results/generalisation.json`;
+`--separate` does exactly that (what `run_all.py` runs):
+
+    python benchmarks/generalisation.py --small --no-cv --max-steps 100 --separate \
+        --json benchmarks/results/generalisation.json
 
 `--quick` is a smoke run (fewer records, two datasets unless `--datasets` names
 others, fewer steps). The JSON is rewritten after every dataset, so a long run can be
@@ -48,6 +52,9 @@ reads).
 import argparse
 import json
 import os
+import subprocess
+import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -655,6 +662,37 @@ def _finish(figures: dict) -> dict:
     return figures
 
 
+def _run_separately(args) -> None:
+    """`main` with `--separate`: each dataset (those of `--datasets`, or the
+    default ones) in a fresh process with the same options, one after another, then
+    `--analyse` of their files into `--json`."""
+    if args.analyse or args.plain_only or args.json is None:
+        raise SystemExit(
+            "--separate needs --json and neither --analyse nor --plain-only"
+        )
+    names = (
+        args.datasets.split(",")
+        if args.datasets
+        else (
+            list(QUICK_DATASETS) if args.quick else gd.dataset_names((gd.FRESH_DRAW,))
+        )
+    )
+    options = [f"--max-steps={args.max_steps}", f"--screen-steps={args.screen_steps}"]
+    options += [flag for flag in ("quick", "small", "no_cv") if getattr(args, flag)]
+    options = [o if o.startswith("--") else "--" + o.replace("_", "-") for o in options]
+    with tempfile.TemporaryDirectory() as folder:
+        parts = []
+        for name in names:
+            part = Path(folder) / f"gen_{len(parts)}.json"
+            command = [sys.executable, __file__, *options, "--datasets", name]
+            subprocess.run([*command, "--json", str(part)], check=True)
+            parts.append(str(part))
+        subprocess.run(
+            [sys.executable, __file__, "--analyse", *parts, "--json", str(args.json)],
+            check=True,
+        )
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--json", type=Path, help="write the figures here")
@@ -682,7 +720,16 @@ def main():
         nargs="+",
         help="only analyse these JSON files (their datasets merged)",
     )
+    parser.add_argument(
+        "--separate",
+        action="store_true",
+        help="run every dataset in a process of its own (one process compiling "
+        "every dataset's fits can run out of memory), then analyse them together",
+    )
     args = parser.parse_args()
+    if args.separate:
+        _run_separately(args)
+        return
     if args.analyse:
         parts = [json.loads(path.read_text()) for path in args.analyse]
         figures = parts[0]
