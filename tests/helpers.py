@@ -206,23 +206,25 @@ MODEL_CASES = (
 )
 
 
-def dahl_runs(rhos, k_ws):
-    """One experiment per (rho, k_w): a Dahl brake, 1 Hz ±20°, one cycle, 1 % noise."""
-    ts = jnp.linspace(0.0, 1.0, 101)
+def dahl_runs(rhos, k_ws, samples: int = 101, substeps: int = 4, rotary: bool = True):
+    """One experiment per (rho, k_w): a Dahl brake, 1 Hz ±20°, one cycle of
+    `samples` samples, 1 % noise, simulated with `substeps` RK4 steps a sample;
+    `rotary`: whether the runs say they are a brake's (see below)."""
+    ts = jnp.linspace(0.0, 1.0, samples)
     motion = jaxmr.Sine(jnp.deg2rad(20.0), 1.0)
     rng = np.random.default_rng(1)
     runs = []
     for rho, k_w in zip(rhos, k_ws):
-        # Four RK4 steps per sample (2.5 ms; the torque within 1e-7 of k_w of the
-        # adaptive solve's, far below the noise): these are the data, not what is
-        # tested, and fixed steps compile in a fraction of the adaptive solve's time
-        # (3 s against 12 s, in every process that calls this).
+        # Fixed RK4 steps (by default four per sample, 2.5 ms; the torque within
+        # 1e-7 of k_w of the adaptive solve's, far below the noise): these are the
+        # data, not what is tested, and fixed steps compile in a fraction of the
+        # adaptive solve's time (3 s against 12 s, in every process that calls this).
         sol = jaxmr.simulate(
             jaxmr.Dahl(k_x=0.01, k_w=k_w, rho=rho),
             motion,
             0.0,
             ts,
-            integrator=jaxmr.FixedStep(4),
+            integrator=jaxmr.FixedStep(substeps),
         )
         force = np.asarray(sol.force)
         runs.append(
@@ -237,7 +239,7 @@ def dahl_runs(rhos, k_ws):
                 # steps (0.5 ms, 20 a sample); read as a linear damper's, ±20° would
                 # be ±0.35 m at up to 2.2 m/s, and the 25 µm travel limit would take
                 # 576 steps a sample on average (29 times the runtime, same fits).
-                rotary=True,
+                rotary=rotary,
             )
         )
     return runs

@@ -16,7 +16,6 @@ import os
 import subprocess
 import sys
 from pathlib import Path
-from types import SimpleNamespace
 
 import numpy as np
 
@@ -28,38 +27,11 @@ TIMEOUT = 120
 
 
 def _runs(samples: int, rhos, k_ws):
-    """Dahl brake runs, 1 Hz ±20°, `samples` samples over one period, 1 % noise."""
-    import jax.numpy as jnp
+    """`dahl_runs` with `samples` samples over one period, one RK4 step each
+    (≤ 0.17 ms), read as a linear damper's: the data that made the batched QR hang."""
+    from .helpers import dahl_runs
 
-    import jaxmr
-
-    ts = jnp.linspace(0.0, 1.0, samples)
-    motion = jaxmr.Sine(jnp.deg2rad(20.0), 1.0)
-    rng = np.random.default_rng(1)
-    runs = []
-    for rho, k_w in zip(rhos, k_ws):
-        # One RK4 step per sample (≤ 0.17 ms; the torque within 1e-7 of the adaptive
-        # solve's): these are the data, not what is tested, and fixed steps compile in
-        # a fraction of the adaptive solve's time.
-        sol = jaxmr.simulate(
-            jaxmr.Dahl(k_x=0.01, k_w=k_w, rho=rho),
-            motion,
-            0.0,
-            ts,
-            integrator=jaxmr.FixedStep(1),
-        )
-        force = np.asarray(sol.force)
-        runs.append(
-            SimpleNamespace(  # as tests/helpers.py's `dahl_runs`
-                t=np.asarray(ts),
-                x=np.asarray(sol.displacement),
-                v=np.asarray(sol.velocity),
-                current=np.zeros(ts.shape),
-                force=force + 0.01 * np.std(force) * rng.standard_normal(force.shape),
-                name=f"rho={rho}",
-            )
-        )
-    return runs
+    return dahl_runs(rhos, k_ws, samples=samples, substeps=1, rotary=False)
 
 
 def fits() -> dict:
