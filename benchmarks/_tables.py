@@ -432,6 +432,59 @@ TABLES = (
         ),
     ),
     Table(
+        "gpu_throughput",
+        "gpu_throughput.py",
+        (
+            Row(
+                "gpu_speedup_sweep",
+                "`sweep`, 65 536 damper runs: accelerator over the same machine's CPU, "
+                "compilation excluded",
+            ),
+            Row("gpu_speedup_sweep_with_compile", "the same, compilation included"),
+            Row("gpu_sweep_sim_s_per_s", "accelerator: simulated s per wall s"),
+            Row(
+                "cpu_sweep_sim_s_per_s", "CPU (`configure_cpu`): simulated s per wall s"
+            ),
+            Row(
+                "gpu_speedup_closed_loop",
+                "`evaluate`, skyhook on 8 192 roads: accelerator over CPU, compilation "
+                "excluded",
+            ),
+            Row(
+                "gpu_speedup_closed_loop_with_compile",
+                "the same, compilation included",
+            ),
+            Row("gpu_closed_loop_sim_s_per_s", "accelerator: simulated s per wall s"),
+            Row("cpu_closed_loop_sim_s_per_s", "CPU: simulated s per wall s"),
+            *(
+                Row(
+                    f"{side}/{case}/{n}/{figure}",
+                    f"{'accelerator' if side == 'accelerator' else 'CPU'}, "
+                    f"{label.format(n=n)}: {what}",
+                )
+                for case, label, sizes in (
+                    ("sweep", "sweep of {n} runs", (1024, 8192)),
+                    ("closed_loop", "closed loop on {n} roads", (64, 1024)),
+                )
+                for n in sizes
+                for side in ("accelerator", "cpu")
+                for figure, what in (("sim_s_per_s", "simulated s per wall s"),)
+            ),
+            *(
+                Row(
+                    f"{side}/{case}/{n}/compile_s",
+                    f"{'accelerator' if side == 'accelerator' else 'CPU'}, {label}: "
+                    "compilation [s]",
+                )
+                for case, label, n in (
+                    ("sweep", "largest sweep", 65536),
+                    ("closed_loop", "largest closed loop", 8192),
+                )
+                for side in ("accelerator", "cpu")
+            ),
+        ),
+    ),
+    Table(
         "fit_each_scaling",
         "fit_each_scaling.py",
         (

@@ -46,13 +46,16 @@ BOUCWEN = "../shared/data/boucwen_benchmark"  # the project's data, beside the c
 class Benchmark:
     """`script` run with `args` and `--json`; `{results}` in an argument is the
     results folder. `quick`: the arguments of a smoke run where the script has no
-    `--quick`. `requires`: modules it needs that jaxmr does not (absent: skipped)."""
+    `--quick`. `requires`: modules it needs that jaxmr does not (absent: skipped).
+    `accelerator`: it measures an accelerator against the CPU, so it is skipped where
+    JAX sees none (its CPU-only figures would say nothing and replace the real ones)."""
 
     name: str
     script: str
     args: tuple[str, ...] = ()
     quick: tuple[str, ...] = ()
     requires: tuple[str, ...] = ()
+    accelerator: bool = False
 
     def has_quick_flag(self) -> bool:
         """Whether the script defines `--quick` (read from its argument parser)."""
@@ -105,6 +108,7 @@ BENCHMARKS = (
         quick=("--duration", "1", "--roads", "2", "--repeats", "1"),
     ),
     Benchmark("opensees_check", "opensees_check.py", requires=("openseespy",)),
+    Benchmark("gpu_throughput", "gpu_throughput.py", accelerator=True),
     Benchmark("experiment_design", "experiment_design.py"),
     Benchmark("realistic_control", "realistic_control.py"),
     Benchmark("export_c", "export_c.py"),
@@ -154,11 +158,24 @@ def _tail(path: Path, lines: int = 15) -> str:
     return "\n".join(path.read_text(errors="replace").splitlines()[-lines:])
 
 
+def _default_backend() -> str:
+    """JAX's default backend ("cpu", "gpu", ...), asked of a fresh process so that this
+    one starts no backend of its own."""
+    command = [sys.executable, "-c", "import jax; print(jax.default_backend())"]
+    found = subprocess.run(command, capture_output=True, text=True, check=True)
+    return found.stdout.strip()
+
+
 def run(benchmark: Benchmark, results: Path, quick: bool, prefix: str) -> str:
     """Run one benchmark; 'ok', 'failed' or 'skipped (why)'."""
     missing = [m for m in benchmark.requires if find_spec(m) is None]
-    if missing:
-        why = f"skipped ({', '.join(missing)} not installed)"
+    backend = _default_backend() if benchmark.accelerator and not missing else None
+    if missing or backend == "cpu":
+        why = (
+            f"skipped ({', '.join(missing)} not installed)"
+            if missing
+            else "skipped (no accelerator: JAX sees only the CPU)"
+        )
         print(f"{prefix} {benchmark.name}: {why}", flush=True)
         return why
     target = results / f"{benchmark.name}.json"
