@@ -605,10 +605,23 @@ TABLES = (
             ),
             Row(
                 "joint_minus_deployed_paired_z",
+                "mean / standard error (session 13's check, too few roads to tell)",
+            ),
+            Row("joint_better_share_of_roads", "share of those roads where (b) wins"),
+            Row(
+                "joint_minus_deployed_large_mean",
+                "(b) − (c), paired: 240 more fresh roads × 3 noise draws",
+            ),
+            Row("joint_minus_deployed_large_se", "its standard error (over the roads)"),
+            Row(
+                "joint_minus_deployed_large_z",
                 "mean / standard error: (b) better than (c) beyond the scatter",
                 at_least(2, 29),
             ),
-            Row("joint_better_share_of_roads", "share of those roads where (b) wins"),
+            Row(
+                "joint_better_share_of_roads_large",
+                "share of those roads where (b) wins",
+            ),
         ),
     ),
     Table(
