@@ -65,6 +65,21 @@ def spread(tree, mesh: Mesh | None):
     return eqx.combine(jax.tree.map(place, arrays), static)
 
 
+def replicate(tree, mesh: Mesh | None):
+    """Every array leaf whole on every device of `mesh` (unchanged without one).
+
+    A jitted function is traced and compiled again for every new placement of its
+    inputs: a tuner's parameters start on one device and come back from the first
+    step replicated over the mesh. Placed so from the start (and kept so), every step
+    calls the one compiled program (two devices: two compilations of the loss and its
+    gradient before, 6 s of a 16 s first `tune`)."""
+    if mesh is None:
+        return tree
+    sharding = NamedSharding(mesh, PartitionSpec())
+    arrays, static = eqx.partition(tree, eqx.is_array)
+    return eqx.combine(jax.device_put(arrays, sharding), static)
+
+
 def gather(tree):
     """Every array of `tree` whole on every process.
 

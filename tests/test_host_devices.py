@@ -12,6 +12,7 @@ machine finish, under a timeout), whatever factorisation a later step uses. The 
 (12 000 residuals, 3 parameters; 2 starts, or 2 of the 4 problems on each device)
 are those that made the batched QR hang."""
 
+import json
 import os
 import subprocess
 import sys
@@ -59,32 +60,87 @@ def fits() -> dict:
     }
 
 
-def test_starts_and_fit_each_on_two_host_devices_finish_with_one_device_s_results(
-    tmp_path,
-):
-    out = tmp_path / "two.npz"
+def _on_two_devices(code: str) -> str:
+    """Run `code` in a fresh process with two CPU devices (and the session's flags,
+    conftest: configure_cpu), float64; its standard output. A hang fails the test
+    after `TIMEOUT`."""
     env = dict(os.environ, PYTHONPATH=str(HERE.parent))
-    # The session's flags (conftest: configure_cpu) and 2 CPU devices.
     env["XLA_FLAGS"] = (
         env.get("XLA_FLAGS", "") + " --xla_force_host_platform_device_count=2"
     )
-    code = (
-        "import jax, numpy as np\n"
+    head = (
+        "import jax\n"
         "jax.config.update('jax_enable_x64', True)\n"
         "assert len(jax.devices()) == 2\n"
-        "from tests.test_host_devices import fits\n"
-        f"np.savez({str(out)!r}, **fits())\n"
     )
     done = subprocess.run(
-        [sys.executable, "-c", code],
+        [sys.executable, "-c", head + code],
         env=env,
         timeout=TIMEOUT,
         capture_output=True,
         text=True,
     )
     assert done.returncode == 0, done.stderr[-3000:]
+    return done.stdout
+
+
+def test_starts_and_fit_each_on_two_host_devices_finish_with_one_device_s_results(
+    tmp_path,
+):
+    out = tmp_path / "two.npz"
+    _on_two_devices(
+        "import numpy as np\n"
+        "from tests.test_host_devices import fits\n"
+        f"np.savez({str(out)!r}, **fits())\n"
+    )
     two, one = dict(np.load(out)), fits()
     for name in one:
         # Exactly: each lane and each problem is computed by the same program in
         # either layout, and the QR one matrix at a time as it was batched.
         np.testing.assert_array_equal(two[name], one[name], err_msg=name)
+
+
+def compilations() -> dict:
+    """{function: times traced} over a 3-step `tune` (relaxed, its hard law checked
+    twice) and a 3-generation `cma_es` of a skyhook gain on 2 roads of 0.5 s. A
+    function traced again is compiled again (or read again from the persistent
+    cache, which the tests share): counting traces sees both."""
+    import collections
+
+    import jax
+    import jax.numpy as jnp
+
+    import jaxmr
+
+    counts = collections.Counter()
+
+    def count(event, seconds, fun_name="", **kwargs):
+        if event.endswith("jaxpr_trace_duration"):
+            counts[fun_name] += 1
+
+    jax.monitoring.register_event_duration_secs_listener(count)
+    car = jaxmr.passenger_car(jaxmr.passenger_car_mr_damper())
+    keys = jax.vmap(jax.random.key)(jnp.arange(2))
+    roads = jax.vmap(lambda k: jaxmr.iso8608_road("C", 20.0, 0.5, k))(keys)
+    law = jaxmr.Skyhook(2000.0, 1.0)
+    gain = lambda pair: pair[1].c_sky
+    jaxmr.tune(car, law, roads, 0.5, parameters=gain, steps=3, check_every=2,
+               temperature=0.1, sensors="oracle", progress=False)  # fmt: skip
+    jaxmr.cma_es(car, law, roads, 0.5, parameters=gain, population=4,
+                 simulations=2 * (1 + 3 * 4), sensors="oracle")  # fmt: skip
+    return dict(counts)
+
+
+def test_tuners_trace_each_function_once_on_two_host_devices():
+    # The parameters start on one device and come back from a step replicated over
+    # the devices; evosax's `init` leaves its state weakly typed where `tell` does
+    # not. Either made every step's program compile twice (a first `tune` of the
+    # rich law: 16 s, 8 s once fixed).
+    printed = _on_two_devices(
+        "import json\n"
+        "from tests.test_host_devices import compilations\n"
+        "print(json.dumps(compilations()))\n"
+    )
+    counts = json.loads(printed.strip().splitlines()[-1])
+    for function in ("loss_and_grad", "losses", "_adam", "ask", "tell"):
+        assert counts.get(function) == 1, (function, counts)

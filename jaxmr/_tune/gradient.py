@@ -11,7 +11,7 @@ from .._closed_loop import Sampling, SystemSolution, loop_settings
 from .._control.base import AbstractController
 from .._control.sensors import Sensors
 from .._control.smooth import temperatures
-from .._distribute import to_host
+from .._distribute import batch_mesh, replicate, to_host
 from .._integrate import FixedStep
 from .._systems.base import AbstractSystem
 from .common import (
@@ -59,6 +59,24 @@ def _schedule(temperature, controller, steps: int) -> np.ndarray | None:
     if temperature < 0:
         raise ValueError(f"tune: `temperature` must be >= 0, got {temperature}.")
     return None if temperature == 0 else np.full(steps, temperature)
+
+
+_BETA1, _BETA2, _EPS = 0.9, 0.999, 1e-12  # Adam's moment decays and its floor
+
+
+@jax.jit
+def _adam(u, m, s, grads, rate, t):
+    """One Adam step of the parameters `u` (a tuple of arrays) with moments `m`, `s`
+    at step `t` (1, 2, ...) and learning rate `rate`: `(u, m, s)` after it. One
+    compiled program (eagerly, each of its dozen element-wise operations compiled on
+    its own: about 2 s of a first `tune`)."""
+    m = tuple(_BETA1 * a + (1 - _BETA1) * g for a, g in zip(m, grads))
+    s = tuple(_BETA2 * a + (1 - _BETA2) * g**2 for a, g in zip(s, grads))
+    u = tuple(
+        v - rate * (a / (1 - _BETA1**t)) / (jnp.sqrt(b / (1 - _BETA2**t)) + _EPS)
+        for v, a, b in zip(u, m, s)
+    )
+    return u, m, s
 
 
 def tune(
@@ -236,9 +254,11 @@ def tune(
         sensors, key = noise
         return sensors, jax.random.fold_in(jax.random.split(key)[1], k)
 
+    # The parameters where every step's update leaves them: one compiled program.
+    mesh = batch_mesh()
+    u = replicate(u, mesh)
     m = tuple(jnp.zeros_like(v) for v in u)
     s = tuple(jnp.zeros_like(v) for v in u)
-    beta1, beta2, eps = 0.9, 0.999, 1e-12
     start = time.perf_counter()
     reason = f"reached steps = {steps}"
     try:
@@ -264,14 +284,9 @@ def tune(
             if k - max(best_step, relaxed_step) >= patience:
                 reason = f"stalled: no improvement in {patience} steps"
                 break
-            m = tuple(beta1 * a + (1 - beta1) * g for a, g in zip(m, grads))
-            s = tuple(beta2 * a + (1 - beta2) * g**2 for a, g in zip(s, grads))
-            t = k + 1
-            u = tuple(
-                v
-                - rates[k] * (a / (1 - beta1**t)) / (jnp.sqrt(b / (1 - beta2**t)) + eps)
-                for v, a, b in zip(u, m, s)
-            )
+            # The rate and step as arrays: one program for every step.
+            u, m, s = _adam(u, m, s, grads, jnp.asarray(rates[k]), jnp.asarray(k + 1.0))
+            u = replicate(u, mesh)
         if relaxed and checked_u is not u and not reason.startswith("stalled"):
             check(u, steps)
             history[-1] = best_loss
