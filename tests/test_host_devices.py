@@ -101,8 +101,9 @@ def test_starts_and_fit_each_on_two_host_devices_finish_with_one_device_s_result
 
 
 def compilations() -> dict:
-    """{function: times traced} over a 3-step `tune` (relaxed, its hard law checked
-    twice) and a 3-generation `cma_es` of a skyhook gain on 2 roads of 0.5 s. A
+    """{function: times traced} over a one-start `fit` of 3 steps with its 2 lanes on
+    the 2 devices, a 3-step `tune` (relaxed, its hard law checked twice) and a
+    3-generation `cma_es` of a skyhook gain on 2 roads of 0.5 s. A
     function traced again is compiled again (or read again from the persistent
     cache, which the tests share): counting traces sees both."""
     import collections
@@ -119,6 +120,10 @@ def compilations() -> dict:
             counts[fun_name] += 1
 
     jax.monitoring.register_event_duration_secs_listener(count)
+    P = jaxmr.Positive
+    guess = jaxmr.Dahl(k_x=P(0.02), k_w=P(2.0), rho=P(8.0))
+    jaxmr.fit(guess, _runs(2000, (3.0, 5.0), (1.0, 2.0)), lanes=2, max_steps=3,
+              progress=False)  # fmt: skip
     car = jaxmr.passenger_car(jaxmr.passenger_car_mr_damper())
     keys = jax.vmap(jax.random.key)(jnp.arange(2))
     roads = jax.vmap(lambda k: jaxmr.iso8608_road("C", 20.0, 0.5, k))(keys)
@@ -131,16 +136,25 @@ def compilations() -> dict:
     return dict(counts)
 
 
-def test_tuners_trace_each_function_once_on_two_host_devices():
-    # The parameters start on one device and come back from a step replicated over
-    # the devices; evosax's `init` leaves its state weakly typed where `tell` does
-    # not. Either made every step's program compile twice (a first `tune` of the
-    # rich law: 16 s, 8 s once fixed).
+def test_a_fit_and_the_tuners_trace_each_step_once_on_two_host_devices():
+    # A tuner's parameters start on one device and come back from a step replicated
+    # over the devices; a fit's column scale came from a first step on unit scales
+    # placed apart from the parameters it then divides; evosax's `init` leaves its
+    # state weakly typed where `tell` does not. Each made a step's program compile
+    # twice (a first `tune` of the rich law: 16 s, 8 s once fixed).
     printed = _on_two_devices(
         "import json\n"
         "from tests.test_host_devices import compilations\n"
         "print(json.dumps(compilations()))\n"
     )
     counts = json.loads(printed.strip().splitlines()[-1])
-    for function in ("loss_and_grad", "losses", "_adam", "ask", "tell"):
+    for function in (
+        "_init",
+        "_step",
+        "loss_and_grad",
+        "losses",
+        "_adam",
+        "ask",
+        "tell",
+    ):
         assert counts.get(function) == 1, (function, counts)

@@ -19,10 +19,10 @@ import jax.numpy as jnp
 import numpy as np
 import optimistix as optx
 from jax.flatten_util import ravel_pytree
-from jax.sharding import PartitionSpec
+from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from .._custom_types import Array, Bool, Float
-from .._distribute import BATCH as MESH_AXIS, to_host
+from .._distribute import BATCH as MESH_AXIS, replicate, to_host
 from .._parameter import Bounded, Fixed, Positive, free_filter, is_parameter
 from .residual import value_and_jacobian, value_and_jacobian_jit
 from .result import Outcome, StopReason
@@ -258,18 +258,39 @@ def column_scale(residuals_fn, free, static, data, extra, *, step=None):
     else:
         _, jac = value_and_jacobian_jit(residuals_fn, free, static, data, extra)
         norms = jax.tree.map(lambda j: jnp.sqrt(jnp.sum(j**2, axis=0)), jac)
+    floor = _norm_floor(norms)
+    # Placed as `_first_step_norms` placed its unit scale, so that `iterate`'s steps,
+    # whose parameters are divided by this scale, reuse that step's program.
+    return placed_like_data(
+        jax.tree.map(lambda n: 1.0 / jnp.maximum(n, floor), norms), data
+    )
+
+
+def _norm_floor(norms) -> float:
+    """The smallest column norm scaled by: a variable the data barely see (an effect
+    below the noise) is not magnified more than 100x; unbounded, its huge steps sent
+    such a parameter to zero."""
     largest = max(float(jnp.max(n)) for n in jax.tree.leaves(norms))
-    # A variable the data barely see (an effect below the noise) is not magnified more
-    # than 100x: unbounded, its huge steps sent such a parameter to zero.
-    floor = max(1e-2 * largest, 1e-300)
-    return jax.tree.map(lambda n: 1.0 / jnp.maximum(n, floor), norms)
+    return max(1e-2 * largest, 1e-300)
+
+
+def placed_like_data(tree, data):
+    """`tree` replicated over the devices the fit's lanes are spread over
+    (`_lanes_on_devices`), or unchanged where they are not. A jitted step is traced
+    and compiled again for every new placement of its inputs: the parameters and
+    their scale placed alike in every call, the step compiles once."""
+    sharding = getattr(getattr(data, "step", None), "sharding", None)
+    mesh = sharding.mesh if isinstance(sharding, NamedSharding) else None
+    return replicate(tree, mesh) if isinstance(mesh, Mesh) else tree
 
 
 def _first_step_norms(solver, scaled_residuals, free, static, data):
     """The Jacobian's column norms at `free` from one step of `solver` from there with
     unit scale: the arguments of `iterate`'s first step for one start, shapes and
     types included, so that the compiled `_init` and `_step` are those it reuses."""
-    unit = jax.tree.map(lambda a: jnp.ones(jnp.shape(a), jnp.result_type(a)), free)
+    unit = placed_like_data(
+        jax.tree.map(lambda a: jnp.ones(jnp.shape(a), jnp.result_type(a)), free), data
+    )
     ys = divide(jax.tree.map(lambda a: a[None], free), unit)
     args = (scaled_residuals, static, data, unit)
     solver = _batch_solver(solver, ys, None, None)
