@@ -76,8 +76,19 @@ def replicate(tree, mesh: Mesh | None):
     if mesh is None:
         return tree
     sharding = NamedSharding(mesh, PartitionSpec())
+
+    def place(a):
+        if isinstance(a, jax.Array) and a.sharding == sharding:
+            return a
+        if isinstance(a, jax.Array) and not a.is_fully_addressable:
+            return jax.device_put(a, sharding)
+        # As `spread` places: each process builds its own copies from host values
+        # (the same on every process), so this works across processes too.
+        host = np.asarray(a)
+        return jax.make_array_from_callback(host.shape, sharding, lambda i: host[i])
+
     arrays, static = eqx.partition(tree, eqx.is_array)
-    return eqx.combine(jax.device_put(arrays, sharding), static)
+    return eqx.combine(jax.tree.map(place, arrays), static)
 
 
 def gather(tree):
