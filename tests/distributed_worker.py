@@ -13,10 +13,10 @@ jax.config.update("jax_numpy_dtype_promotion", "strict")
 
 
 def cases():
-    """{name: array}: a sweep, independent fits and a controller's evaluation, each
-    over a batch that the devices do not divide evenly (3 members over 2 processes).
-    The tuning losses place their roads as `evaluate` does (`road_batch`); what they
-    add, leaving padded roads out of the mean, is tested in tests/test_tune.py."""
+    """{name: array}: a sweep, independent fits, a controller's evaluation and its
+    tuning by `tune` and `cma_es`, each over a batch that the devices do not divide
+    evenly (3 members over 2 processes): the tuners' losses leave the padded road
+    out of their means (also tested alone in tests/test_tune.py)."""
     import jax.numpy as jnp
     import numpy as np
 
@@ -55,6 +55,18 @@ def cases():
         sensors="oracle",  # Skyhook inverts the damper: perfect information
     )
     out["evaluate_comfort"] = np.asarray(values["comfort"])
+    # The tuners keep their parameters replicated over every device of every process
+    # (`_distribute.replicate`) while their losses spread the roads.
+    gain = lambda pair: pair[1].c_sky
+    tuners = dict(integrator=jaxmr.FixedStep(1), sensors="oracle")
+    tuned = jaxmr.tune(car, jaxmr.Skyhook(2000.0, 1.0), roads, 0.3, parameters=gain,
+                       steps=3, check_every=2, temperature=0.1, progress=False,
+                       **tuners)  # fmt: skip
+    searched = jaxmr.cma_es(car, jaxmr.Skyhook(2000.0, 1.0), roads, 0.3,
+                            parameters=gain, population=4, simulations=3 * 9,
+                            **tuners)  # fmt: skip
+    for name, result in (("tune", tuned), ("cma_es", searched)):
+        out[name] = np.array([float(result.controller.c_sky), result.loss])
     return out
 
 
