@@ -55,14 +55,7 @@ def spread(tree, mesh: Mesh | None):
     from the same host values."""
     if mesh is None:
         return tree
-    sharding = NamedSharding(mesh, PartitionSpec(BATCH))
-
-    def place(a):
-        host = np.asarray(a)
-        return jax.make_array_from_callback(host.shape, sharding, lambda i: host[i])
-
-    arrays, static = eqx.partition(tree, eqx.is_array)
-    return eqx.combine(jax.tree.map(place, arrays), static)
+    return _place(tree, NamedSharding(mesh, PartitionSpec(BATCH)))
 
 
 def replicate(tree, mesh: Mesh | None):
@@ -70,20 +63,21 @@ def replicate(tree, mesh: Mesh | None):
 
     A jitted function is traced and compiled again for every new placement of its
     inputs: a tuner's parameters start on one device and come back from the first
-    step replicated over the mesh. Placed so from the start (and kept so), every step
-    calls the one compiled program (two devices: two compilations of the loss and its
-    gradient before, 6 s of a 16 s first `tune`)."""
+    step replicated over the mesh. Placed so from the start, every step calls the one
+    compiled program (two devices: two compilations of the loss and its gradient
+    before, 6 s of a 16 s first `tune`)."""
     if mesh is None:
         return tree
-    sharding = NamedSharding(mesh, PartitionSpec())
+    return _place(tree, NamedSharding(mesh, PartitionSpec()))
+
+
+def _place(tree, sharding: NamedSharding):
+    """Every array leaf of `tree` placed by `sharding`. Each process builds only its
+    own shards, from the same host values; a leaf already so placed is left alone."""
 
     def place(a):
         if isinstance(a, jax.Array) and a.sharding == sharding:
             return a
-        if isinstance(a, jax.Array) and not a.is_fully_addressable:
-            return jax.device_put(a, sharding)
-        # As `spread` places: each process builds its own copies from host values
-        # (the same on every process), so this works across processes too.
         host = np.asarray(a)
         return jax.make_array_from_callback(host.shape, sharding, lambda i: host[i])
 

@@ -254,9 +254,9 @@ def tune(
         sensors, key = noise
         return sensors, jax.random.fold_in(jax.random.split(key)[1], k)
 
-    # The parameters where every step's update leaves them: one compiled program.
-    mesh = batch_mesh()
-    u = replicate(u, mesh)
+    # The parameters placed where every step's update leaves them (replicated over
+    # the devices the roads are spread over): one compiled program for every step.
+    u = replicate(u, batch_mesh())
     m = tuple(jnp.zeros_like(v) for v in u)
     s = tuple(jnp.zeros_like(v) for v in u)
     start = time.perf_counter()
@@ -286,7 +286,6 @@ def tune(
                 break
             # The rate and step as arrays: one program for every step.
             u, m, s = _adam(u, m, s, grads, jnp.asarray(rates[k]), jnp.asarray(k + 1.0))
-            u = replicate(u, mesh)
         if relaxed and checked_u is not u and not reason.startswith("stalled"):
             check(u, steps)
             history[-1] = best_loss
