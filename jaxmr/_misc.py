@@ -37,9 +37,25 @@ def warn_if_float32(
         )
 
 
+def to_device(x) -> Array:
+    """A host array (NumPy, or anything `np.asarray` takes) as a JAX array, with
+    `jnp.asarray`'s dtype (float64 only under x64), without compiling anything.
+
+    Outside a trace, `jnp.asarray` of a NumPy array runs `lax.stage`, which JAX (0.10)
+    compiles once per shape and dtype: a fit's data, packed anew for every set of
+    experiments, paid 10-30 ms for each of its arrays. `jax.device_put` copies.
+    A JAX array or tracer is returned as it is."""
+    if isinstance(x, (jax.Array, jax.core.Tracer)):
+        return x
+    return jax.device_put(np.asarray(x))
+
+
 def as_float_array(x: ArrayLike) -> Array:
     """Converter for numeric fields: a float array of jax's default float dtype."""
-    return jnp.asarray(x, dtype=default_float())
+    if isinstance(x, (jax.Array, jax.core.Tracer)):
+        return jnp.asarray(x, dtype=default_float())
+    # A host value is converted in NumPy: see `to_device`.
+    return to_device(np.asarray(x, dtype=default_float()))
 
 
 def abs_pow(z: Array, p: Array) -> Array:
@@ -120,7 +136,17 @@ def check_concrete(condition_ok, message: str, *values) -> None:
     Used in `__check_init__`: parameters built by hand are checked at once with a message
     that says how to fix them; parameters that are traced (inside a fit) are checked by
     the simulation's runtime checks instead.
+
+    `condition_ok` may be a function of the `values` (as NumPy arrays), called only
+    when they are concrete: the check then compiles nothing (each eager `jnp`
+    operation compiles once per shape, tens of ms in a fresh process).
     """
+    if callable(condition_ok):
+        if is_concrete(*values) and not bool(
+            np.all(np.asarray(condition_ok(*(np.asarray(v) for v in values))))
+        ):
+            raise ValueError(message)
+        return
     # A condition computed under an outer trace (a module built inside jit from closed-over
     # constants) is a tracer even when the values are not: leave it to the runtime checks.
     if is_concrete(*values, condition_ok) and not bool(

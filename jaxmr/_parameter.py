@@ -11,9 +11,10 @@ import abc
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from ._custom_types import Array, Float
-from ._misc import as_float_array, check_concrete
+from ._misc import as_float_array, check_concrete, is_concrete, to_device
 
 
 class AbstractParameter(eqx.Module):
@@ -36,9 +37,12 @@ class Positive(AbstractParameter):
     def __init__(self, value):
         value = as_float_array(value)
         check_concrete(
-            value > 0, f"Positive: the value must be > 0, got {value}.", value
+            lambda v: v > 0, f"Positive: the value must be > 0, got {value}.", value
         )
-        self.log_value = jnp.log(value)
+        # On a concrete value in NumPy: an eager `jnp.log` compiles (per shape) in a
+        # fresh process, and templates build dozens of these.
+        log = np.log if is_concrete(value) else jnp.log
+        self.log_value = to_device(log(value))
 
     def value(self) -> Array:
         return jnp.exp(self.log_value)
@@ -61,13 +65,14 @@ class Bounded(AbstractParameter):
             )
         value = as_float_array(value)
         check_concrete(
-            (value > lower) & (value < upper),
+            lambda v: (v > lower) & (v < upper),
             f"Bounded: the value {value} must lie strictly inside ({lower}, {upper}).",
             value,
         )
         self.lower, self.upper = float(lower), float(upper)
-        fraction = (value - self.lower) / (self.upper - self.lower)
-        self.raw = jnp.log(fraction) - jnp.log1p(-fraction)
+        xp = np if is_concrete(value) else jnp  # see `Positive`
+        fraction = (xp.asarray(value) - self.lower) / (self.upper - self.lower)
+        self.raw = to_device(xp.log(fraction) - xp.log1p(-fraction))
 
     def value(self) -> Array:
         return self.lower + (self.upper - self.lower) * jax.nn.sigmoid(self.raw)

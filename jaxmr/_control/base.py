@@ -135,7 +135,7 @@ class ConstantCurrent(AbstractController):
 
     def __check_init__(self):
         check_concrete(
-            (self.current >= 0) & (self.current <= self.i_max),
+            lambda current, i_max: (current >= 0) & (current <= i_max),
             f"ConstantCurrent: `current` must lie in [0, i_max] = [0, {self.i_max}] A, "
             f"got {self.current}.",
             self.current,

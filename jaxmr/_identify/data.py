@@ -22,6 +22,7 @@ import numpy as np
 
 from .._custom_types import Array, Bool, Float, Int
 from .._integrate import FixedStep
+from .._misc import to_device
 from .._signal import _hermite, _hermite_slope
 from ..data._experiment import check_columns
 
@@ -449,24 +450,24 @@ def pack(
 
     cat = np.concatenate
     return FitData(
-        inputs=jnp.asarray(inputs),
-        step=jnp.asarray(step),
-        reset=jnp.asarray(reset),
-        sample_index=jnp.asarray(cat(sample_index)),
-        t=jnp.asarray(cat(t_all)),
-        force=jnp.asarray(cat(force_all)),
-        same_run=jnp.asarray(cat(same_run)[:-1]),
-        lo_index=jnp.asarray(cat(lo_index)),
-        lo_fraction=jnp.asarray(cat(lo_fraction)),
-        hi_index=jnp.asarray(cat(hi_index)),
-        hi_fraction=jnp.asarray(cat(hi_fraction)),
-        span=jnp.asarray(cat(span)),
-        smooth=jnp.asarray(cat(smooth)),
-        first_sample=jnp.asarray(cat(first_sample)),
-        last_sample=jnp.asarray(cat(last_sample)),
-        interval=jnp.asarray(cat(interval)),
-        kept=jnp.asarray(cat(kept)),
-        weight=jnp.asarray(cat(weight)),
+        inputs=to_device(inputs),
+        step=to_device(step),
+        reset=to_device(reset),
+        sample_index=to_device(cat(sample_index)),
+        t=to_device(cat(t_all)),
+        force=to_device(cat(force_all)),
+        same_run=to_device(cat(same_run)[:-1]),
+        lo_index=to_device(cat(lo_index)),
+        lo_fraction=to_device(cat(lo_fraction)),
+        hi_index=to_device(cat(hi_index)),
+        hi_fraction=to_device(cat(hi_fraction)),
+        span=to_device(cat(span)),
+        smooth=to_device(cat(smooth)),
+        first_sample=to_device(cat(first_sample)),
+        last_sample=to_device(cat(last_sample)),
+        interval=to_device(cat(interval)),
+        kept=to_device(cat(kept)),
+        weight=to_device(cat(weight)),
         names=tuple(names),
         offsets=tuple(offsets),
         data_steps=int(sum(len(run[3]) for run in runs)),

@@ -36,6 +36,7 @@ from .solver import (
     multiply,
     progress_printer,
     spread_starts,
+    unscaled_member,
 )
 
 
@@ -274,7 +275,7 @@ def fit(
     )
     stats_data = _lanes_on_devices(stats_data)
     return _report(
-        jax.tree.map(lambda a: a[best], multiply(best_y, scale)),
+        unscaled_member(best_y, scale, best),
         static,
         data,
         outcome,

@@ -309,7 +309,14 @@ def _parameter_names(free) -> list[str]:
 
 def _values_and_scale(free, static):
     """Physical values of the free parameters and d(value)/d(free variable), flat."""
+    value_list, derivative_list = _values_and_derivatives(free, static)
+    flatten = lambda xs: np.concatenate([np.ravel(np.asarray(x)) for x in xs])
+    return flatten(value_list), flatten(derivative_list)
 
+
+# Jitted: eagerly, each of the wrappers' operations compiled apart in a fresh process.
+@eqx.filter_jit
+def _values_and_derivatives(free, static):
     def values(f):
         tree = eqx.combine(f, static)
         wrapped = jax.tree.map(
@@ -327,9 +334,7 @@ def _values_and_scale(free, static):
         ]
 
     ones = jax.tree.map(jnp.ones_like, free)
-    value_list, derivative_list = jax.jvp(values, (free,), (ones,))
-    flatten = lambda xs: np.concatenate([np.ravel(np.asarray(x)) for x in xs])
-    return flatten(value_list), flatten(derivative_list)
+    return jax.jvp(values, (free,), (ones,))
 
 
 def _free_mask(tree):

@@ -23,6 +23,7 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from .._custom_types import Array, Bool, Float
 from .._distribute import BATCH as MESH_AXIS, replicate, to_host
+from .._misc import to_device
 from .._parameter import Bounded, Fixed, Positive, free_filter, is_parameter
 from .residual import value_and_jacobian, value_and_jacobian_jit
 from .result import Outcome, StopReason
@@ -257,12 +258,14 @@ def column_scale(residuals_fn, free, static, data, extra, *, step=None):
         norms = _first_step_norms(solver, scaled_residuals, free, static, data)
     else:
         _, jac = value_and_jacobian_jit(residuals_fn, free, static, data, extra)
-        norms = jax.tree.map(lambda j: jnp.sqrt(jnp.sum(j**2, axis=0)), jac)
+        norms = jax.tree.map(lambda j: np.sqrt(np.sum(to_host(j) ** 2, axis=0)), jac)
+    # In NumPy on the host (p numbers): as eager `jnp` operations each compiled once
+    # per shape, a few hundred ms of a first fit. Placed as `_first_step_norms` placed
+    # its unit scale, so that `iterate`'s steps, whose parameters are divided by this
+    # scale, reuse that step's program.
     floor = _norm_floor(norms)
-    # Placed as `_first_step_norms` placed its unit scale, so that `iterate`'s steps,
-    # whose parameters are divided by this scale, reuse that step's program.
     return placed_like_data(
-        jax.tree.map(lambda n: 1.0 / jnp.maximum(n, floor), norms), data
+        jax.tree.map(lambda n: to_device(1.0 / np.maximum(n, floor)), norms), data
     )
 
 
@@ -270,7 +273,7 @@ def _norm_floor(norms) -> float:
     """The smallest column norm scaled by: a variable the data barely see (an effect
     below the noise) is not magnified more than 100x; unbounded, its huge steps sent
     such a parameter to zero."""
-    largest = max(float(jnp.max(n)) for n in jax.tree.leaves(norms))
+    largest = max(float(np.max(n)) for n in jax.tree.leaves(norms))
     return max(1e-2 * largest, 1e-300)
 
 
@@ -289,9 +292,9 @@ def _first_step_norms(solver, scaled_residuals, free, static, data):
     unit scale: the arguments of `iterate`'s first step for one start, shapes and
     types included, so that the compiled `_init` and `_step` are those it reuses."""
     unit = placed_like_data(
-        jax.tree.map(lambda a: jnp.ones(jnp.shape(a), jnp.result_type(a)), free), data
+        jax.tree.map(lambda a: to_device(np.ones(np.shape(a), a.dtype)), free), data
     )
-    ys = divide(jax.tree.map(lambda a: a[None], free), unit)
+    ys = one_start(free, unit)
     args = (scaled_residuals, static, data, unit)
     solver = _batch_solver(solver, ys, None, None)
     dynamic, static_state = eqx.partition(
@@ -299,12 +302,34 @@ def _first_step_norms(solver, scaled_residuals, free, static, data):
     )
     _, dynamic, *_ = _step(solver, ys, dynamic, static_state, args, None, None, None)
     # The first step accepts the start: its JᵀJ is the start's, columns unscaled.
-    _, unravel = ravel_pytree(free)
-    return unravel(jnp.sqrt(jnp.diagonal(dynamic.gram[0])))
+    # Unravelled in NumPy, like `free`'s leaves (their order and shapes).
+    norms = np.sqrt(np.diagonal(to_host(dynamic.gram)[0]))
+    leaves, treedef = jax.tree.flatten(free)
+    sizes = np.cumsum([np.size(a) for a in leaves])[:-1]
+    parts = np.split(norms, sizes)
+    return jax.tree.unflatten(
+        treedef, [p.reshape(np.shape(a)) for p, a in zip(parts, leaves, strict=True)]
+    )
 
 
+@eqx.filter_jit
+def unscaled_member(ys, scale, k):
+    """Member `k` of the batch `ys` (axis 0), multiplied back by the column `scale`:
+    one program, where eager indexing compiled a slice per leaf."""
+    return jax.tree.map(lambda y, s: y[k] * s, ys, scale)
+
+
+# Jitted: its callers are eager, where each leaf's division compiled apart in a fresh
+# process.
+@eqx.filter_jit
 def divide(ys, scale):
     return jax.tree.map(lambda y, s: y / s, ys, scale)
+
+
+@eqx.filter_jit
+def one_start(free, scale):
+    """`free` divided by `scale`, as a batch of one (axis 0)."""
+    return jax.tree.map(lambda y, s: (y / s)[None], free, scale)
 
 
 def multiply(ys, scale):
@@ -586,13 +611,7 @@ def iterate(
             active = ~(converged | failed | stalled)
             steps = np.where(active, k, steps)
             better = active & np.isfinite(loss) & (loss < best_loss)
-            best_y = jax.tree.map(
-                lambda new, old, b=better: jnp.where(
-                    jnp.reshape(b, (-1,) + (1,) * (new.ndim - 1)), new, old
-                ),
-                at,
-                best_y,
-            )
+            best_y = _keep_better(better, at, best_y)
             best_loss = np.where(better, loss, best_loss)
             improved = best_loss < reference * (1 - ftol)
             reference = np.where(improved, best_loss, reference)
@@ -631,6 +650,17 @@ def iterate(
         Outcome(float(best_loss[j]), tuple(history), int(steps[j]), why(j))
         for j in range(n)
     ]
+
+
+@eqx.filter_jit
+def _keep_better(better, new, old):
+    """Each member's `new` point where `better`, else its `old` one (one compiled
+    program, not an eager `where` per leaf)."""
+    return jax.tree.map(
+        lambda n, o: jnp.where(jnp.reshape(better, (-1,) + (1,) * (n.ndim - 1)), n, o),
+        new,
+        old,
+    )
 
 
 class ProgressPrinter:

@@ -22,7 +22,7 @@ from .._control.base import AbstractController
 from .._custom_types import Array, Float
 from .._damper import with_fitted_range
 from .._integrate import FixedStep
-from .._misc import as_float_array, is_concrete
+from .._misc import as_float_array, is_concrete, to_device
 from .._parameter import free_filter, unwrap
 from .._signal import AbstractSignal, _is_uniform, as_signal
 from .._systems.base import AbstractSystem
@@ -32,10 +32,11 @@ from .result import FitResult, assemble, statistics
 from .solver import (
     FastLevenbergMarquardt,
     column_scale,
-    divide,
     iterate,
     multiply,
+    one_start,
     progress_printer,
+    unscaled_member,
 )
 
 
@@ -181,7 +182,7 @@ def _stack_records(records, system, dt, discard) -> _SystemData:
         # equally whatever its length and amplitude.
         columns["weight"].append(1.0 / (scale * np.sqrt(np.sum(kept))))
     return _SystemData(
-        **{k: jnp.asarray(np.stack(v)) for k, v in columns.items()},
+        **{k: to_device(np.stack(v)) for k, v in columns.items()},
         excitations=tuple(r.excitation for r in records),
         initial_states=tuple(r.initial_state for r in records),
         samples=tuple(samples),
@@ -390,7 +391,7 @@ def fit_system(
     scale = column_scale(residuals, free, static, None, None)
     best_y, (outcome,) = iterate(
         solver,
-        divide(jax.tree.map(lambda a: a[None], free), scale),
+        one_start(free, scale),
         (scaled_residuals, None, None, scale),
         None,
         max_steps,
@@ -399,7 +400,7 @@ def fit_system(
         progress_printer(progress),
         stop=stop,
     )
-    free_best = jax.tree.map(lambda a: a[0], multiply(best_y, scale))
+    free_best = unscaled_member(best_y, scale, 0)
     return _system_result(
         free_best, static, data, sim, residuals, outcome, identifiability_threshold
     )
