@@ -311,6 +311,11 @@ TABLES = (
                 at_least(0.12, 28),
             ),
             Row(
+                "constrained_fresh_feasible_per_set",
+                "the constrained law within the tyre limit on each fresh set",
+                is_true(28),
+            ),
+            Row(
                 "cmaes_wall_ratio",
                 "CMA-ES (best of its grid) wall clock to the gradient's loss, over "
                 "the gradient's",

@@ -74,12 +74,15 @@ class Settings:
     # choose the baselines (best constant, best feasible constant). Fresh: three sets
     # never seen before this script, drawn after everything is frozen (seeds never
     # used before: sessions 2-9 probed 10-13, 20-23, 2000-2011 and 3000-3011).
+    # Sessions 11-14 scored on 41000-41011, 42000-42011 and 43000-43011; session 15
+    # changed the constrained law's rule after seeing it break the limit on the second
+    # of them, so those sets are retired and every headline is scored on new ones.
     train_seeds: tuple = tuple(range(4))
     dev_seeds: tuple = tuple(range(1000, 1012))
     fresh_road_sets: tuple = (
-        tuple(range(41000, 41012)),
-        tuple(range(42000, 42012)),
-        tuple(range(43000, 43012)),
+        tuple(range(44000, 44012)),
+        tuple(range(45000, 45012)),
+        tuple(range(46000, 46012)),
     )
     # The rich law (chosen on the training roads' loss in sessions 4-9): its
     # measurements, 16 tanh units, Adam at 0.03, the relaxation annealed 0.1 -> 0.05,
@@ -118,18 +121,26 @@ class Settings:
     sky_grid: int = 37
     # The constrained law (session 8): dual ascent on the Lagrangian of the mean tyre
     # load, rounds of `tune` on comfort + lambda (tyre / target - 1), the multiplier
-    # raised by RHO x the training excess over the target after each round. A round's
-    # law is kept when its training tyre load is at most `margin` x the limit (3 % set
-    # aside for other roads: the development roads' tyre load ran 2.6 % above the
-    # training roads' in a session-8 probe); the rounds aim at `target` x the limit.
-    # Frozen here; no fresh road set enters its choice.
+    # raised by RHO x the training excess over the target after each round; the
+    # rounds aim at `target` x the limit to start. The limit holds on a road set
+    # when the set's mean tyre load is at most `tyre_limit` x passive-on's on the
+    # same roads: a statistic of 12 random roads, which varies from set to set.
+    # Session 15's rule (sessions 8-14 kept a round whose training tyre load was at
+    # most 0.97 x the limit, and a fresh set then broke the limit by 0.7 %): a
+    # round's law is kept when, on the development roads resampled as sets of their
+    # size (`bootstrap` draws), its tyre load over passive-on's is within the limit
+    # with probability `confidence`; the most comfortable such round on the training
+    # roads is kept. A round that misses lowers the next rounds' target by its
+    # excess. Frozen here; no fresh road set enters its choice.
     tyre_limit: float = 1.02  # x passive-on's RMS dynamic tyre load
     lagrange_start: float = 0.3
     rho: float = 3.0
-    rounds: int = 4
+    rounds: int = 6
     round_steps: int = 30
-    margin: float = 0.97
     target: float = 0.96
+    confidence: float = 0.975
+    bootstrap: int = 4000
+    bootstrap_seed: int = 20261126
     # Robust tuning. The damper is identified from simulated tests of the preset
     # (three 2 Hz ±10 mm sine tests at 0, 0.5, 1 A, 3 cycles at 500 Hz, the first
     # cycle left out; 2 % white + 3 % AR(1) force noise, `_generalisation_data`),
@@ -741,9 +752,21 @@ def main():
     )
     multiplier, rounds, spent_c = cfg.lagrange_start, [], 0
     target_c = cfg.target * train_limit
+    dev_on = evaluate(car, jaxmr.ConstantCurrent(I_MAX, I_MAX), dev, T, metrics)
+    resample = np.random.default_rng(cfg.bootstrap_seed).integers(
+        0, len(cfg.dev_seeds), (cfg.bootstrap, len(cfg.dev_seeds))
+    )
+
+    def dev_bound(tyre):
+        """The `confidence` quantile, over road sets resampled from the development
+        roads, of a set's tyre load over its limit (tyre_limit x passive-on's)."""
+        passive = np.asarray(dev_on["tyre_load"])
+        ratio = np.asarray(tyre)[resample].mean(axis=1) / passive[resample].mean(axis=1)
+        return float(np.quantile(ratio / cfg.tyre_limit, cfg.confidence))
+
     for k in range(cfg.rounds):
 
-        def lagrangian(sol, multiplier=multiplier):
+        def lagrangian(sol, multiplier=multiplier, target_c=target_c):
             ratio = jaxmr.metrics.rms(sol["tyre_force"]) / car.static_load
             # The comfort scale (0.9 m/s²) makes the multiplier dimensionless.
             return jaxmr.metrics.comfort(sol) + multiplier * 0.9 * (
@@ -767,11 +790,18 @@ def main():
         spent_c += result.simulations
         law_c = result.controller
         on_train = evaluate(car, law_c, train, T, metrics)
+        on_dev = evaluate(car, law_c, dev, T, metrics)
         row = {
             "multiplier": multiplier,
+            "target_over_limit": target_c / train_limit,
             "train_comfort": float(np.mean(on_train["comfort"])),
             "train_tyre_over_limit": float(np.mean(on_train["tyre_load"]))
             / train_limit,
+            "dev_tyre_over_limit": float(
+                np.mean(on_dev["tyre_load"]) / np.mean(dev_on["tyre_load"])
+            )
+            / cfg.tyre_limit,
+            "dev_tyre_bound": dev_bound(on_dev["tyre_load"]),
             "simulations": result.simulations,
             "seconds": result.seconds,
         }
@@ -779,11 +809,18 @@ def main():
         print(f"constrained round {k}: {row}", flush=True)
         over_target = row["train_tyre_over_limit"] * train_limit / target_c
         multiplier = max(0.0, multiplier + cfg.rho * (over_target - 1))
-    ok_rounds = [r for r in rounds if r[0]["train_tyre_over_limit"] <= cfg.margin]
-    kept = min(ok_rounds or rounds, key=lambda r: r[0]["train_comfort"])
+        if row["dev_tyre_bound"] > 1:
+            target_c /= row["dev_tyre_bound"]
+    ok_rounds = [r for r in rounds if r[0]["dev_tyre_bound"] <= 1]
+    kept = (
+        min(ok_rounds, key=lambda r: r[0]["train_comfort"])
+        if ok_rounds
+        else min(rounds, key=lambda r: r[0]["dev_tyre_bound"])
+    )
     rich_c = kept[1]
     out["constrained_rounds"] = [r[0] for r in rounds]
     out["constrained_kept_round"] = rounds.index(kept)
+    out["constrained_round_within_bound"] = bool(ok_rounds)
     out["constrained_simulations"] = spent_c
 
     # Skyhook from a gain ten times too small, against the best gain of a grid (both

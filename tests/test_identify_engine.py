@@ -151,6 +151,37 @@ def test_a_second_fit_with_a_new_solver_instance_does_not_recompile():
     assert compiled == []
 
 
+def test_packing_data_and_building_parameters_compile_nothing():
+    # Sample counts no other test uses, so that JAX's in-process cache of eager
+    # programs cannot hide a compilation: outside a trace `jnp.asarray` of a NumPy
+    # array compiles `lax.stage` once per shape (JAX 0.10), as `pack` did for each of
+    # its arrays, and an eager `jnp.log` or comparison once per shape and dtype.
+    runs = [
+        SimpleNamespace(**{**vars(r), "name": f"odd {k}"})
+        for k, r in enumerate(dahl_runs((5.0, 7.0), (3.0, 2.0), samples=97))
+    ]
+    compiled = []
+
+    def listen(event, duration, **kwargs):
+        if event == "/jax/core/compile/backend_compile_duration":
+            compiled.append(kwargs.get("fun_name"))
+
+    jax.monitoring.register_event_duration_secs_listener(listen)
+    try:
+        data = pack(runs, StepPolicy(substeps=3), lanes=2)
+        positive = jaxmr.Positive(np.linspace(1.0, 2.0, 13))
+        bounded = jaxmr.Bounded(np.full(11, 0.25), 0.0, 1.0)
+        with pytest.raises(ValueError, match="must be > 0"):
+            jaxmr.Positive(np.array([1.0, -1.0, 2.0, 3.0, 5.0]))
+    finally:
+        jax.monitoring.clear_event_listeners()
+    assert compiled == []
+    # The values are those `jnp` gave (float64 under the tests' x64).
+    assert data.t.dtype == jnp.float64 and data.kept.dtype == jnp.int64
+    np.testing.assert_allclose(np.exp(positive.log_value), np.linspace(1.0, 2.0, 13))
+    assert np.all(np.abs(np.asarray(bounded.raw) - np.log(1 / 3)) < 1e-15)
+
+
 def test_zero_loss_is_not_convergence_and_bad_data_is_refused():
     truth = jaxmr.Dahl(k_x=0.01, k_w=3.0, rho=5.0)
     (run,) = dahl_runs((5.0,), (3.0,))
