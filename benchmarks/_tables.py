@@ -584,6 +584,11 @@ TABLES = (
                 "the published model on the same 12",
             ),
             Row("held_out_better_than_published", "held-out files where it is better"),
+            Row(
+                "goals/held_out beats published",
+                "held-out median below the published model's",
+                is_true(25),
+            ),
         ),
     ),
     Table(
