@@ -14,7 +14,13 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._custom_types import Array, Float
-from ._misc import as_float_array, check_concrete, is_concrete, to_device
+from ._misc import (
+    as_float_array,
+    check_concrete,
+    default_float,
+    is_concrete,
+    to_device,
+)
 
 
 class AbstractParameter(eqx.Module):
@@ -35,14 +41,14 @@ class Positive(AbstractParameter):
     log_value: Float[Array, "..."]
 
     def __init__(self, value):
-        value = as_float_array(value)
+        # A concrete value in NumPy: an eager `jnp.log` compiles (per shape) in a
+        # fresh process, and templates build dozens of these.
+        xp = np if is_concrete(value) else jnp
+        value = xp.asarray(value, dtype=default_float())
         check_concrete(
             lambda v: v > 0, f"Positive: the value must be > 0, got {value}.", value
         )
-        # On a concrete value in NumPy: an eager `jnp.log` compiles (per shape) in a
-        # fresh process, and templates build dozens of these.
-        log = np.log if is_concrete(value) else jnp.log
-        self.log_value = to_device(log(value))
+        self.log_value = to_device(xp.log(value))
 
     def value(self) -> Array:
         return jnp.exp(self.log_value)
@@ -63,15 +69,15 @@ class Bounded(AbstractParameter):
             raise ValueError(
                 f"Bounded: `lower` must be < `upper`, got {lower} and {upper}."
             )
-        value = as_float_array(value)
+        xp = np if is_concrete(value) else jnp  # see `Positive`
+        value = xp.asarray(value, dtype=default_float())
         check_concrete(
             lambda v: (v > lower) & (v < upper),
             f"Bounded: the value {value} must lie strictly inside ({lower}, {upper}).",
             value,
         )
         self.lower, self.upper = float(lower), float(upper)
-        xp = np if is_concrete(value) else jnp  # see `Positive`
-        fraction = (xp.asarray(value) - self.lower) / (self.upper - self.lower)
+        fraction = (value - self.lower) / (self.upper - self.lower)
         self.raw = to_device(xp.log(fraction) - xp.log1p(-fraction))
 
     def value(self) -> Array:

@@ -258,15 +258,21 @@ def column_scale(residuals_fn, free, static, data, extra, *, step=None):
         norms = _first_step_norms(solver, scaled_residuals, free, static, data)
     else:
         _, jac = value_and_jacobian_jit(residuals_fn, free, static, data, extra)
-        norms = jax.tree.map(lambda j: np.sqrt(np.sum(to_host(j) ** 2, axis=0)), jac)
-    # In NumPy on the host (p numbers): as eager `jnp` operations each compiled once
-    # per shape, a few hundred ms of a first fit. Placed as `_first_step_norms` placed
-    # its unit scale, so that `iterate`'s steps, whose parameters are divided by this
-    # scale, reuse that step's program.
+        # On the device (the Jacobian can be large), only the p norms brought back.
+        norms = jax.tree.map(to_host, _column_norms(jac))
+    # The rest in NumPy on the host (p numbers): as eager `jnp` operations each
+    # compiled once per shape, a few hundred ms of a first fit. Placed as
+    # `_first_step_norms` placed its unit scale, so that `iterate`'s steps, whose
+    # parameters are divided by this scale, reuse that step's program.
     floor = _norm_floor(norms)
     return placed_like_data(
         jax.tree.map(lambda n: to_device(1.0 / np.maximum(n, floor)), norms), data
     )
+
+
+@eqx.filter_jit
+def _column_norms(jac):
+    return jax.tree.map(lambda j: jnp.sqrt(jnp.sum(j**2, axis=0)), jac)
 
 
 def _norm_floor(norms) -> float:
@@ -312,10 +318,15 @@ def _first_step_norms(solver, scaled_residuals, free, static, data):
     )
 
 
-@eqx.filter_jit
-def unscaled_member(ys, scale, k):
+def unscaled_member(ys, scale, k: int):
     """Member `k` of the batch `ys` (axis 0), multiplied back by the column `scale`:
-    one program, where eager indexing compiled a slice per leaf."""
+    one program, where eager indexing compiled a slice per leaf (`k` passed as an
+    array, so that another member does not compile it again)."""
+    return _unscaled_member(ys, scale, np.asarray(k))
+
+
+@eqx.filter_jit
+def _unscaled_member(ys, scale, k):
     return jax.tree.map(lambda y, s: y[k] * s, ys, scale)
 
 
