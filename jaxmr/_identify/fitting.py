@@ -26,7 +26,13 @@ from .data import (
     per_experiment,
     stack,
 )
-from .residual import residuals, simulate, simulate_jit, value_and_jacobian
+from .residual import (
+    residuals,
+    simulate,
+    simulate_jit,
+    traced_once,
+    value_and_jacobian,
+)
 from .result import FitResult, assemble, kept_groups, statistics, statistics_from
 from .solver import (
     FastLevenbergMarquardt,
@@ -41,7 +47,9 @@ from .solver import (
 
 
 def _scaled_residuals(y, static, data, scale):
-    return residuals(multiply(y, scale), static, data)
+    # Through `traced_once` on the unscaled residual, which the statistics
+    # differentiate at the optimum: one trace of the model serves both.
+    return traced_once(residuals, multiply(y, scale), static, data, None)
 
 
 def _check_current_laws(model, experiments) -> None:

@@ -133,11 +133,22 @@ def value_and_jacobian(residuals_fn, free, static, data, extra):
     alongside the p tangents, so the pair costs about p + 1 residuals' work."""
 
     def both(f):
-        r = residuals_fn(f, static, data, extra)
+        r = traced_once(residuals_fn, f, static, data, extra)
         return r, r
 
     jac, r = jax.jacfwd(both, has_aux=True)(free)
     return r, jac
+
+
+@eqx.filter_jit
+def traced_once(residuals_fn, free, static, data, extra):
+    """`residuals_fn(free, static, data, extra)` as a jitted call inside the fit's
+    programs: JAX traces the model's Python once per argument shapes and then
+    transforms that jaxpr (the Jacobian's forward mode, the batch's vmap) wherever
+    the residual appears again (the solver's `_init`, its step's trial point and
+    Jacobian, the statistics), instead of running the model's Python again in each;
+    XLA inlines the call, so the compiled programs do the same work."""
+    return residuals_fn(free, static, data, extra)
 
 
 simulate_jit = eqx.filter_jit(simulate)

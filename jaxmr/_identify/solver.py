@@ -25,7 +25,7 @@ from .._custom_types import Array, Bool, Float
 from .._distribute import BATCH as MESH_AXIS, replicate, to_host
 from .._misc import to_device
 from .._parameter import Bounded, Fixed, Positive, free_filter, is_parameter
-from .residual import value_and_jacobian, value_and_jacobian_jit
+from .residual import traced_once, value_and_jacobian, value_and_jacobian_jit
 from .result import Outcome, StopReason
 
 
@@ -423,7 +423,7 @@ def _lm_fn(y, args):
     # pass). With this rule its linearisation is a matrix product.
     @jax.custom_jvp
     def residual(y):
-        return residuals_fn(y, static, data, extra)
+        return traced_once(residuals_fn, y, static, data, extra)
 
     @residual.defjvp
     def residual_jvp(primals, tangents):
