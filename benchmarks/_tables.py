@@ -437,6 +437,31 @@ TABLES = (
         ),
     ),
     Table(
+        "design_criterion_choice",
+        "design_criterion_choice.py",
+        (
+            Row(
+                "i_over_d_geomean",
+                "I-optimal plan's held-out NRMSE over D-optimal's, geometric mean over "
+                "5 simulated dampers (mean over 3 noise seeds)",
+            ),
+            Row(
+                "i_over_d_geomean_seed_medians",
+                "the same with the median over the seeds",
+            ),
+            Row("i_over_d_min", "the lowest damper's ratio"),
+            Row("i_over_d_max", "the highest damper's ratio"),
+            Row(
+                "d_over_random_geomean",
+                "D-optimal plan over the median random plan, geometric mean",
+            ),
+            Row(
+                "rule_switches_to_i",
+                "the rule fixed before the run (I/D below 0.95) says switch",
+            ),
+        ),
+    ),
+    Table(
         "gpu_throughput",
         "gpu_throughput.py",
         (

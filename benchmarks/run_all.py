@@ -110,6 +110,7 @@ BENCHMARKS = (
     Benchmark("opensees_check", "opensees_check.py", requires=("openseespy",)),
     Benchmark("gpu_throughput", "gpu_throughput.py", accelerator=True),
     Benchmark("experiment_design", "experiment_design.py"),
+    Benchmark("design_criterion_choice", "design_criterion_choice.py"),
     Benchmark("realistic_control", "realistic_control.py"),
     Benchmark("export_c", "export_c.py"),
     Benchmark("held_out_currents", "held_out_currents.py"),
