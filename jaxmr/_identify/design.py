@@ -534,7 +534,8 @@ def design_experiments(
     - `criterion`: `"D"`, `"A"` or `"I"` (default: `"A"` with `parameters`, else
       `"D"`). I-optimality spreads the plan over the conditions the menu covers,
       where D-optimality goes to its extremes: on the UTFSM damper (6 of 30 tests)
-      it is the one that predicted the other 24 tests better (benchmarks/README).
+      it is the one that predicted the other 24 tests better, while on five simulated
+      dampers neither criterion predicted clearly better (benchmarks/README).
     - `already`: tests already run (sequential design): their information is added
       before choosing.
     - `weighting`: how the fit to come weighs the tests, as `fit`'s `weighting`:
