@@ -48,7 +48,9 @@ from .solver import (
 
 def _scaled_residuals(y, static, data, scale):
     # Through `traced_once` on the unscaled residual, which the statistics
-    # differentiate at the optimum: one trace of the model serves both.
+    # differentiate at the optimum: with `statistics_refinement=1` (the same data)
+    # one trace of the model serves both; refined, the statistics' data have
+    # another shape and are traced apart.
     return traced_once(residuals, multiply(y, scale), static, data, None)
 
 
