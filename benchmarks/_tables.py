@@ -443,7 +443,7 @@ TABLES = (
             Row(
                 "i_over_d_geomean",
                 "I-optimal plan's held-out NRMSE over D-optimal's, geometric mean over "
-                "5 simulated dampers (mean over 3 noise seeds)",
+                "5 simulated dampers (mean over 10 noise seeds)",
             ),
             Row(
                 "i_over_d_geomean_seed_medians",
@@ -457,7 +457,7 @@ TABLES = (
             ),
             Row(
                 "rule_switches_to_i",
-                "the rule fixed before the run (I/D below 0.95) says switch",
+                "the rule fixed before the run (I/D below 0.95 by the means and below 1 by the medians) says switch",
             ),
         ),
     ),

@@ -30,14 +30,18 @@ Figures: per preset, `D`, `I` and the random plans' median. At the top level:
 - `i_over_d_geomean`: the geometric mean over the presets of I's score over D's.
   Below 1, I predicted better.
 - `d_over_random_geomean` and `i_over_d_max`.
-- `rule_switches_to_i`: the rule fixed before this run. It is true when I beats D
-  with a geometric mean below 0.95.
 - `i_over_d_geomean_seed_medians`: the same ratio with each plan scored by its median
-  over the seeds instead of the mean. It was added after the first run of this
-  script, as a check: one failed fit can decide the mean of three seeds.
+  over the seeds instead of the mean (one failed fit moves a mean, not a median).
+- `rule_switches_to_i`: the rule, fixed before the run with these seeds (session 17).
+  It is true when I beats D on both statistics: `i_over_d_geomean` below 0.95 and
+  `i_over_d_geomean_seed_medians` below 1.
 
-A first look with noise seeds 101 and 202 (session 16, not kept) gave a geometric
-mean of 1.03. The noise seeds here were drawn after it.
+History, so that the seeds here are read as fresh. A first look with noise seeds 101
+and 202 (session 16, not kept) gave a geometric mean of 1.03. A run with seeds 303,
+404 and 505 gave 0.894 by the mean and 1.16 by the median: one stalled D fit (the
+review's damper, seed 303) decided the mean, and the rule of that run (the mean alone
+below 0.95) was not acted on. The ten seeds here were drawn after it, and the rule
+above, which asks both statistics, was fixed before they ran.
 
     python benchmarks/design_criterion_choice.py --json benchmarks/results/design_criterion_choice.json
     python benchmarks/design_criterion_choice.py --json /tmp/dcc.json --quick   # smoke test
@@ -68,13 +72,16 @@ from jaxmr.templates import MODEL_TEMPLATES  # noqa: E402
 K = 4
 RANDOM_PLANS = 5
 PLAN_SEED = 7
-NOISE_SEEDS = (303, 404, 505)
+NOISE_SEEDS = tuple(range(1201, 1211))
 MAX_STEPS = 60
 SAMPLES_PER_CYCLE = 100
 CYCLES = 2.5
 # I replaces D as the default only where it predicts at least 5 % better over the
-# presets (geometric mean): a smaller gap is within the seeds' scatter.
+# presets (geometric mean of the seeds' means: a smaller gap is within the seeds'
+# scatter) and is also better by the seeds' medians (so that no single failed fit
+# decides).
 SWITCH_BELOW = 0.95
+SWITCH_BELOW_MEDIANS = 1.0
 # Spencer 1997 and the review's damper take a command voltage.
 VOLTAGE = ("spencer_1997", "review_quarter_car_damper")
 
@@ -189,6 +196,9 @@ def main():
     i_over_d = {n: v["I"] / v["D"] for n, v in per_preset.items()}
     d_over_random = {n: v["D"] / v["random_median"] for n, v in per_preset.items()}
     geomean = lambda xs: float(np.exp(np.mean(np.log(list(xs)))))
+    by_medians = geomean(
+        v["I_median_over_seeds"] / v["D_median_over_seeds"] for v in per_preset.values()
+    )
     figures = {
         "quick": args.quick,
         "k": K,
@@ -202,11 +212,10 @@ def main():
         "d_over_random_geomean": geomean(d_over_random.values()),
         "d_over_random": d_over_random,
         "switch_below": SWITCH_BELOW,
-        "rule_switches_to_i": geomean(i_over_d.values()) < SWITCH_BELOW,
-        "i_over_d_geomean_seed_medians": geomean(
-            v["I_median_over_seeds"] / v["D_median_over_seeds"]
-            for v in per_preset.values()
-        ),
+        "switch_below_medians": SWITCH_BELOW_MEDIANS,
+        "i_over_d_geomean_seed_medians": by_medians,
+        "rule_switches_to_i": geomean(i_over_d.values()) < SWITCH_BELOW
+        and by_medians < SWITCH_BELOW_MEDIANS,
         "presets": per_preset,
         "seconds": time.perf_counter() - started,
     }
