@@ -180,6 +180,24 @@ def test_experiment_warns_about_implausible_units(change, match):
         jd.Experiment(**columns)
 
 
+@pytest.mark.parametrize("rotary", [False, True])
+def test_a_force_that_feeds_energy_into_the_motion_is_warned_about(rotary):
+    t, x, v = _sine(n=200)
+    rng = np.random.default_rng(0)
+    hysteretic = 50.0 * np.tanh(v / 0.01) + 20.0 * v
+    with pytest.warns(jd.DataWarning, match=r"works against .* is -0\.9") as w:
+        jd.Experiment(t, x, v, 0.0, -hysteretic, rotary=rotary)
+    load = "T" if rotary else "F"
+    assert [(c.message.kind, c.message.column) for c in w] == [("sign", load)]  # pyright: ignore[reportAttributeAccessIssue]
+    # The convention's sign, and a force that does not depend on the motion (noise
+    # about an offset, a record at rest), raise nothing.
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        jd.Experiment(t, x, v, 0.0, hysteretic, rotary=rotary)
+        jd.Experiment(t, x, v, 0.0, 5.0 + rng.standard_normal(t.size), rotary=rotary)
+        jd.Experiment(t, 0 * x, 0 * v, 0.0, -hysteretic, rotary=rotary)
+
+
 def test_voltage_drive_and_rotary_are_not_checked_as_current_or_stroke():
     t, x, v = _sine(n=10)
     jd.Experiment(t, 100 * x, 100 * v, 500.0, drive="voltage", rotary=True)

@@ -1,6 +1,7 @@
 """A user's own tables (`jaxmr.data.read_table`, `jaxmr convert table`), one answer from
 the Python API and the command line on the same files, implausible units refused by
-`jaxmr fit`, and a step in the displacement named when a record is read.
+`jaxmr fit`, a force read the other way round refused and negated by its column's
+unit, and a step in the displacement named when a record is read.
 
 The fits are tiny (Bingham, two files of 1.5 cycles at 100 Hz, 4 steps) and share one
 data shape, so they compile once.
@@ -230,12 +231,13 @@ def test_convert_table_names_its_unit_mistakes(tmp_path, capsys):
     assert e.velocity_source != "measured"  # computed from x
 
 
+# The force rises with the displacement (along the velocity: a passive device's sign).
 LAYOUTS = {
-    "tabs, decimal point": "0.0\t1.5\t2\n0.1\t1.25\t3\n0.2\t1.0\t4\n",
-    "semicolons, decimal comma": "0,0;1,5;2\n0,1;1,25;3\n0,2;1,0;4\n",
-    "commas, header": "t,x,F\n0.0,1.5,2\n0.1,1.25,3\n0.2,1.0,4\n",
-    "whitespace, decimal comma": "0,0  1,5 2\n 0,1 1,25   3\n0,2 1,0 4\n",
-    "whitespace, comment and blank lines": "# rig 3\n\n0 1.5 2\n0.1 1.25 3\n\n0.2 1 4\n",
+    "tabs, decimal point": "0.0\t1.0\t2\n0.1\t1.25\t3\n0.2\t1.5\t4\n",
+    "semicolons, decimal comma": "0,0;1,0;2\n0,1;1,25;3\n0,2;1,5;4\n",
+    "commas, header": "t,x,F\n0.0,1.0,2\n0.1,1.25,3\n0.2,1.5,4\n",
+    "whitespace, decimal comma": "0,0  1,0 2\n 0,1 1,25   3\n0,2 1,5 4\n",
+    "whitespace, comment and blank lines": "# rig 3\n\n0 1 2\n0.1 1.25 3\n\n0.2 1.5 4\n",
 }
 
 
@@ -245,7 +247,7 @@ def test_read_table_detects_the_layout(layout, tmp_path):
     path.write_text(LAYOUTS[layout], encoding="utf-8")
     e = jaxmr.data.read_table(path, "t:ms,x:cm,F:kN", current=0.5)
     np.testing.assert_array_equal(e.t, [0.0, 1e-4, 2e-4])
-    np.testing.assert_allclose(e.x, [0.015, 0.0125, 0.01], rtol=1e-15)
+    np.testing.assert_allclose(e.x, [0.01, 0.0125, 0.015], rtol=1e-15)
     np.testing.assert_array_equal(e.force, [2e3, 3e3, 4e3])  # pyright: ignore[reportArgumentType]
     np.testing.assert_array_equal(e.current, [0.5] * 3)
     assert e.drive == "current" and e.name == "table"
@@ -327,3 +329,44 @@ def test_consistent_records_give_no_motion_warning():
         jaxmr.data.Experiment(t, 0.01 * np.sin(w * t), 0.01 * w * np.cos(w * t))
         lagged = 1.1 * 0.01 * w * np.cos(w * (t - 0.5 / 400))
         jaxmr.data.Experiment(t, 0.01 * np.sin(w * t), lagged)
+
+
+def test_a_reversed_force_is_refused_and_a_minus_unit_negates_it(
+    files, tmp_path, capsys
+):
+    """A load cell read the other way round: `jaxmr convert table` and `jaxmr fit`
+    stop before any work, naming the column and the fix; `F:-kN` in --columns reads
+    the same table as the original force."""
+    e = jaxmr.data.read_csv(files[0][0])
+    assert e.force is not None
+    with pytest.warns(jaxmr.data.DataWarning, match="works against"):
+        reversed_force = jaxmr.data.Experiment(e.t, e.x, e.v, e.current, -e.force)
+    raw = tmp_path / "reversed.txt"
+    raw.write_text(_raw_text(reversed_force), encoding="utf-8")
+    columns = ["--columns", "t,x:mm,v:mm/s,F:kN", "--current", "0"]
+    out = tmp_path / "converted"
+    status, _ = _run(["convert", "table", raw, *columns, "--out", out])
+    err = capsys.readouterr().err
+    assert status == 1 and not out.exists()
+    assert "a reversed sign, nothing done" in err and "column `F`" in err
+    assert "F:-kN" in err and "--accept-units" in err
+    columns[1] = "t,x:mm,v:mm/s,F:-kN"
+    status, _ = _run(["convert", "table", raw, *columns, "--out", out])
+    assert status == 0, capsys.readouterr().err
+    (converted,) = out.glob("*.csv")
+    back = jaxmr.data.read_csv(converted)
+    # The table holds 12 significant digits of the force in kN.
+    np.testing.assert_allclose(back.force, e.force, rtol=1e-10, atol=1e-9)
+    # A canonical CSV with the reversed force stops `jaxmr fit` the same way.
+    path = tmp_path / "reversed.csv"
+    jaxmr.data.write_csv(reversed_force, path)
+    fitted = tmp_path / "p.json"
+    status, _ = _run(["fit", "--model", "bingham", "--out", fitted, path])
+    err = capsys.readouterr().err
+    assert status == 1 and not fitted.exists()
+    assert "a reversed sign" in err and "F:-kN" in err
+
+
+def test_only_motion_and_force_columns_take_a_minus_sign(files):
+    with pytest.raises(ValueError, match=r"column 't' cannot be negated"):
+        jaxmr.data.read_table(files[1][0], "t:-s,x:mm,v:mm/s,F:kN", current=0.0)

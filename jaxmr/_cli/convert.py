@@ -70,7 +70,9 @@ def add_parser(subparsers) -> None:
             "x [m, cm, mm, um, in], v [m/s, cm/s, mm/s, in/s] (optional: computed from "
             "x), F [N, kN, daN, lbf] for a damper; theta [rad, mrad, deg], omega "
             "[rad/s, deg/s, rpm], T [N·m, Nm, N·mm, kN·m] for a brake; the input i "
-            "[A, mA] or u [V, mV]; _ to leave a column out"
+            "[A, mA] or u [V, mV]; _ to leave a column out. A minus sign before a "
+            "unit negates a motion or force column (F:-kN): for a load cell read the "
+            "other way round"
         ),
     )
     level = table.add_mutually_exclusive_group()
@@ -159,6 +161,8 @@ def run_table(args: argparse.Namespace) -> int:
                     ),
                     accept=args.accept_units,
                     fix="declare the unit in --columns (e.g. x:mm, t:ms, i:mA)",
+                    sign_fix="negate the force in --columns: a minus sign before its "
+                    "unit (e.g. F:-kN, or F:- in N)",
                 )
             )
         except ValueError as e:

@@ -36,39 +36,57 @@ FORCE_HELP = "replace existing output files (never one of the inputs)"
 
 ACCEPT_UNITS_HELP = (
     "go on with values that are implausible in their declared (or SI) units, e.g. a "
-    "displacement amplitude above 0.5 m (by default the command stops there: such a "
-    "file is almost always in other units)"
+    "displacement amplitude above 0.5 m, or with a force whose sign would feed energy "
+    "into the motion (by default the command stops there: such a file is almost always "
+    "in other units, or read the other way round)"
 )
+
+# The data layer's `DataWarning` kinds that stop a command unless --accept-units.
+_REFUSED = ("unit", "sign")
 
 
 _Read = TypeVar("_Read")
 
 
-def checking_units(read: Callable[[], _Read], *, accept: bool, fix: str) -> _Read:
-    """`read()`, refusing an implausible unit: the data layer's `DataWarning`s of kind
-    "unit" become a `CLIError` naming the column and the unit its values look like,
-    with `fix` (how to declare the unit); with `accept` they stay warnings. The other
-    warnings go on to the command's printer, once each."""
+def checking_units(
+    read: Callable[[], _Read], *, accept: bool, fix: str, sign_fix: str
+) -> _Read:
+    """`read()`, refusing implausible data: the data layer's `DataWarning`s of kind
+    "unit" (a column in other units) and "sign" (a force read the other way round)
+    become a `CLIError` naming the column (and the unit its values look like), with
+    `fix` (how to declare the unit) or `sign_fix` (how to negate the force); with
+    `accept` they stay warnings. The other warnings go on to the command's printer,
+    once each."""
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         result = read()
-    units = [
+    refused = [
         w.message
         for w in caught
-        if isinstance(w.message, jaxmr.data.DataWarning) and w.message.kind == "unit"
+        if isinstance(w.message, jaxmr.data.DataWarning) and w.message.kind in _REFUSED
     ]
     for w in caught:
-        if accept or w.message not in units:
+        if accept or w.message not in refused:
             warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
-    if units and not accept:
+    if refused and not accept:
         lines = []
-        for u in units:
+        for u in refused:
             looks = f", which look like {u.suggested}" if u.suggested else ""
             lines.append(f"{u} [column `{u.column}`{looks}]")
+        fixes = [
+            text
+            for kind, text in (("unit", fix), ("sign", sign_fix))
+            if any(u.kind == kind for u in refused)
+        ]
+        what = " and ".join(
+            {"unit": "implausible unit(s)", "sign": "a reversed sign"}[kind]
+            for kind in _REFUSED
+            if any(u.kind == kind for u in refused)
+        )
         raise CLIError(
-            "implausible unit(s), nothing done:\n  "
+            f"{what}, nothing done:\n  "
             + "\n  ".join(lines)
-            + f"\n{fix}; or pass --accept-units if the values are right"
+            + f"\n{'; '.join(fixes)}; or pass --accept-units if the values are right"
         )
     return result
 
@@ -100,6 +118,11 @@ def read_experiments(
                         "write the file in SI units, e.g. with the column's unit "
                         "declared: `jaxmr convert table RAW --columns t,x:mm,... --out "
                         "DIR`"
+                    ),
+                    sign_fix=(
+                        "write the file with the force negated, e.g. with a minus "
+                        "sign before its unit: `jaxmr convert table RAW --columns "
+                        "t,x:mm,F:-kN ... --out DIR`"
                     ),
                 )
         except ValueError as e:

@@ -55,6 +55,15 @@ MAX_VELOCITY_RATIO = 10.0
 # record 0.7 (measured).
 MAX_MOTION_MISMATCH = 3.0
 
+# A passive device (an MR damper or brake, whatever its current) takes energy from the
+# motion: with jaxmr's convention (the force the device resists the motion with, positive
+# along the velocity: F = c v for a viscous damper) the mean power mean(F v) is positive.
+# Normalised by rms(F) rms(v) (so within [-1, 1]) the UTFSM sine files give +0.94 to
+# +0.97 and the NEES random record +0.86 (measured); a force read the other way round
+# gives the same negated. A record below this feeds energy into the rig, which no
+# passive device does.
+MIN_NORMALISED_POWER = -0.3
+
 _DRIVES = ("current", "voltage")
 
 
@@ -65,9 +74,10 @@ class DataWarning(UserWarning):
 
     **Attributes:**
 
-    - `kind`: `"unit"` (a column's values are implausible in SI units) or `"motion"`
+    - `kind`: `"unit"` (a column's values are implausible in SI units), `"motion"`
       (a measured velocity and the displacement disagree: a step in one that the other
-      does not show).
+      does not show) or `"sign"` (the force has the opposite sign to jaxmr's
+      convention: it would feed energy into the motion).
     - `column`: the column concerned (`"t"`, `"x"`, `"v"`, `"F"`, `"i"`; `"theta"`,
       `"omega"`, `"T"` for a brake).
     - `suggested`: the unit the values look like (e.g. `"mm"` for `x`), or None.
@@ -292,6 +302,8 @@ def warn_implausible_units(
                 "i",
                 "mA",
             )
+    if force is not None:
+        _warn_force_sign(v, force, load, velocity, where)
     if velocity_measured:
         derivative = _rms(np.gradient(x, t))
         measured = _rms(v)
@@ -306,6 +318,32 @@ def warn_implausible_units(
                 )
             else:  # units agree: do the samples agree with each other?
                 _warn_motion_steps(t, x, v, position, velocity, rotary, where)
+
+
+def _warn_force_sign(v, force, load, velocity, where) -> None:
+    """A `DataWarning` (kind "sign") where the force's mean power is clearly negative
+    (`MIN_NORMALISED_POWER`): the record's force has the opposite sign to jaxmr's
+    convention (a load cell read the other way round)."""
+    scale = _rms(force) * _rms(v)
+    if not scale > 0:
+        return  # no motion or no force: no direction to judge
+    power = float(np.mean(force * v)) / scale
+    if power >= MIN_NORMALISED_POWER:
+        return
+    warnings.warn(
+        DataWarning(
+            f"{where}: `{load}` works against `{velocity}` (mean power {load}·{velocity} "
+            f"is {power:.2f} of rms({load})·rms({velocity})): with this sign the device "
+            "would feed energy into the motion, which no passive device does. jaxmr "
+            f"takes `{load}` as the force the device resists the motion with, positive "
+            f"along `{velocity}` (F = c v for a viscous damper); negate `{load}` (or, "
+            "if the motion's sign is the one reversed, the displacement and the "
+            "velocity).",
+            kind="sign",
+            column=load,
+        ),
+        stacklevel=_user_stacklevel(sys._getframe()),
+    )
 
 
 def _warn_motion_steps(t, x, v, position, velocity, rotary, where) -> None:
@@ -368,7 +406,16 @@ class Experiment(eqx.Module):
     displacement at a sample step, i.e. a step in `x` that `v` does not show or the
     reverse (two runs joined into one file): the step's displacement differs from the
     trapezoid of `v` over it by more than 3 times the record's large sample steps
-    (the 95th percentile of $|x_{k+1} - x_k|$).
+    (the 95th percentile of $|x_{k+1} - x_k|$); and (kind `"sign"`) about a force
+    that feeds energy into the motion, i.e. has the opposite sign to the convention
+    below: its mean power $\overline{F v}$ below −0.3 of
+    $\mathrm{rms}(F)\,\mathrm{rms}(v)$.
+
+    **Sign convention.** `force` is the force the device resists the motion with,
+    counted positive along the velocity: $F = c\,v$ for a viscous damper, so that a
+    passive device, which takes energy from the motion, has $F v > 0$ on average. A
+    load cell that reads the other way round gives the negated force: negate the
+    column (`read_table`: a unit with a minus sign, e.g. `F:-kN`).
 
     **Arguments:**
 
@@ -378,7 +425,8 @@ class Experiment(eqx.Module):
       compute it from `x`.
     - `current`: the input, current [A] or voltage [V]: one value per sample or a
       scalar (broadcast).
-    - `force`: measured force [N] (torque [N·m]), or `None` (prediction only).
+    - `force`: measured force [N] (torque [N·m]), positive along the velocity (see
+      the sign convention above), or `None` (prediction only).
     - `name`: a label, e.g. the file stem.
     - `rotary`: a brake (angle, torque) rather than a linear damper.
     - `drive`: `"current"` or `"voltage"`: what `current` holds.

@@ -36,6 +36,10 @@ UNITS: dict[str, dict[str, float]] = {
     },
 }
 _GREEK = {"θ": "theta", "ω": "omega"}
+# The columns whose sign depends on how the rig reads them: a unit written with a minus
+# sign (`F:-kN`) negates the column (a load cell read the other way round; see
+# `Experiment`'s sign convention).
+_SIGNED = ("x", "v", "F", "theta", "omega", "T")
 _SKIP = "_"  # a column of the file to leave out
 # The layouts tried, in this order: (delimiter name, split, decimal mark).
 _DELIMITERS = {
@@ -68,12 +72,20 @@ def _parse_columns(columns: str | Sequence[str], where: str) -> list[tuple[str, 
                 "for a column to leave out."
             )
         units = UNITS[name]
+        sign = 1.0
+        if unit.startswith("-"):
+            if name not in _SIGNED:
+                raise ValueError(
+                    f"{where}: the column {name!r} cannot be negated ({spec.strip()!r});"
+                    f" a minus sign before the unit is for {', '.join(_SIGNED)}."
+                )
+            sign, unit = -1.0, unit[1:].strip()
         if unit and unit not in units:
             raise ValueError(
                 f"{where}: unknown unit {unit!r} for column {name!r}; use one of "
                 f"{', '.join(units)} (e.g. {name}:{next(iter(units))})."
             )
-        parsed.append((name, units[unit] if unit else 1.0))
+        parsed.append((name, sign * (units[unit] if unit else 1.0)))
     names = [n for n, _ in parsed if n != _SKIP]
     repeated = sorted({n for n in names if names.count(n) > 1})
     if repeated:
@@ -100,7 +112,7 @@ def _to_si(values: np.ndarray, factor: float) -> np.ndarray:
     inverse (mm: / 1000), so that `62.845 mm` becomes the double nearest 0.062845 m,
     which `write_csv` writes as such (multiplying by the inexact 1e-3 may not)."""
     inverse = 1.0 / factor
-    if factor < 1 and inverse == round(inverse):
+    if abs(factor) < 1 and inverse == round(inverse):
         return values / inverse
     return values * factor
 
@@ -169,7 +181,9 @@ def read_table(
       `Experiment.from_arrays`), `F` [N: N, kN, daN, lbf] (optional: needed to fit);
       for a brake `theta` or `θ` [rad: rad, mrad, deg], `omega` or `ω` [rad/s: rad/s,
       deg/s, rpm], `T` [N·m: N·m, Nm, N·mm, kN·m]; the input `i` [A: A, mA] or `u`
-      [V: V, mV]; `_` for a column to leave out.
+      [V: V, mV]; `_` for a column to leave out. A minus sign before the unit
+      negates a motion or force column (`F:-kN`, `F:-` in SI): for a load cell
+      that reads the force against `Experiment`'s sign convention.
     - `current`: the constant coil current [A] when the table has no input column.
     - `voltage`: the constant command voltage [V] instead (a voltage-driven damper).
     - `name`: the experiment's name (default: the file stem).
