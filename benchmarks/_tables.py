@@ -462,6 +462,39 @@ TABLES = (
         ),
     ),
     Table(
+        "design_criterion_choice_starts4",
+        "design_criterion_choice.py",
+        (
+            Row("starts", "starts per fit (the rule's run: 1)"),
+            Row(
+                "i_over_d_geomean",
+                "I-optimal plan's held-out NRMSE over D-optimal's, geometric mean over "
+                "5 simulated dampers (mean over 10 noise seeds)",
+            ),
+            Row(
+                "i_over_d_geomean_seed_medians",
+                "the same with the median over the seeds",
+            ),
+            Row(
+                "presets/spencer_1997/D",
+                "Spencer 1997: D plan's held-out NRMSE, mean over the seeds",
+            ),
+            Row("presets/spencer_1997/I", "Spencer 1997: I plan's, the same"),
+            Row(
+                "presets/review_quarter_car_damper/D",
+                "the review's damper: D plan's held-out NRMSE, mean over the seeds",
+            ),
+            Row(
+                "presets/review_quarter_car_damper/I",
+                "the review's damper: I plan's, the same",
+            ),
+            Row(
+                "d_over_random_geomean",
+                "D-optimal plan over the median random plan, geometric mean",
+            ),
+        ),
+    ),
+    Table(
         "gpu_throughput",
         "gpu_throughput.py",
         (

@@ -111,6 +111,11 @@ BENCHMARKS = (
     Benchmark("gpu_throughput", "gpu_throughput.py", accelerator=True),
     Benchmark("experiment_design", "experiment_design.py"),
     Benchmark("design_criterion_choice", "design_criterion_choice.py"),
+    Benchmark(
+        "design_criterion_choice_starts4",
+        "design_criterion_choice.py",
+        args=("--starts", "4"),
+    ),
     Benchmark("realistic_control", "realistic_control.py"),
     Benchmark("export_c", "export_c.py"),
     Benchmark("held_out_currents", "held_out_currents.py"),

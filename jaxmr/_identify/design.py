@@ -535,7 +535,10 @@ def design_experiments(
       `"D"`). I-optimality spreads the plan over the conditions the menu covers,
       where D-optimality goes to its extremes: on the UTFSM damper (6 of 30 tests)
       it is the one that predicted the other 24 tests better, while on five simulated
-      dampers neither criterion predicted clearly better (benchmarks/README).
+      dampers neither criterion predicted clearly better from one start per fit,
+      and D did from four (benchmarks/README). Fit a small plan from several
+      starts (`fit(..., starts=4)`): a few tests at the extremes can leave a
+      model's parameters two minima apart.
     - `already`: tests already run (sequential design): their information is added
       before choosing.
     - `weighting`: how the fit to come weighs the tests, as `fit`'s `weighting`:
