@@ -114,6 +114,16 @@ class Table:
     rows: tuple[Row, ...]
 
 
+# The criterion comparison's two ratios, in both of its runs' tables.
+_I_OVER_D = (
+    Row(
+        "i_over_d_geomean",
+        "I-optimal plan's held-out NRMSE over D-optimal's, geometric mean over "
+        "5 simulated dampers (mean over 10 noise seeds)",
+    ),
+    Row("i_over_d_geomean_seed_medians", "the same with the median over the seeds"),
+)
+
 # --- the headline figures of each benchmark ------------------------------------------
 
 TABLES = (
@@ -440,15 +450,7 @@ TABLES = (
         "design_criterion_choice",
         "design_criterion_choice.py",
         (
-            Row(
-                "i_over_d_geomean",
-                "I-optimal plan's held-out NRMSE over D-optimal's, geometric mean over "
-                "5 simulated dampers (mean over 10 noise seeds)",
-            ),
-            Row(
-                "i_over_d_geomean_seed_medians",
-                "the same with the median over the seeds",
-            ),
+            *_I_OVER_D,
             Row("i_over_d_min", "the lowest damper's ratio"),
             Row("i_over_d_max", "the highest damper's ratio"),
             Row(
@@ -466,15 +468,7 @@ TABLES = (
         "design_criterion_choice.py",
         (
             Row("starts", "starts per fit (the rule's run: 1)"),
-            Row(
-                "i_over_d_geomean",
-                "I-optimal plan's held-out NRMSE over D-optimal's, geometric mean over "
-                "5 simulated dampers (mean over 10 noise seeds)",
-            ),
-            Row(
-                "i_over_d_geomean_seed_medians",
-                "the same with the median over the seeds",
-            ),
+            *_I_OVER_D,
             Row(
                 "presets/spencer_1997/D",
                 "Spencer 1997: D plan's held-out NRMSE, mean over the seeds",
