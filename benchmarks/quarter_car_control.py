@@ -76,13 +76,16 @@ class Settings:
     # used before: sessions 2-9 probed 10-13, 20-23, 2000-2011 and 3000-3011).
     # Sessions 11-14 scored on 41000-41011, 42000-42011 and 43000-43011; session 15
     # changed the constrained law's rule after seeing it break the limit on the second
-    # of them, so those sets are retired and every headline is scored on new ones.
+    # of them, so those sets were retired. Session 15-16 scored on 44000-44011,
+    # 45000-45011 and 46000-46011; session 17 drew new sets for a change of the
+    # constrained law's sensors (`CONSTRAINED_FEATURES`), which it then dropped on the
+    # development roads' figure: these sets score the law frozen in session 15.
     train_seeds: tuple = tuple(range(4))
     dev_seeds: tuple = tuple(range(1000, 1012))
     fresh_road_sets: tuple = (
-        tuple(range(44000, 44012)),
-        tuple(range(45000, 45012)),
-        tuple(range(46000, 46012)),
+        tuple(range(51000, 51012)),
+        tuple(range(52000, 52012)),
+        tuple(range(53000, 53012)),
     )
     # The rich law (chosen on the training roads' loss in sessions 4-9): its
     # measurements, 16 tanh units, Adam at 0.03, the relaxation annealed 0.1 -> 0.05,
@@ -201,6 +204,13 @@ I_MAX = 1.0
 SPEED = 20.0  # m/s
 CONSTANTS = (0.0, 0.02, 0.05, 0.1, 0.15, 0.2, 0.3, 0.5, 0.75, 1.0)
 RICH_FEATURES = ("body_velocity", "body_acceleration", "damper_velocity")
+# The constrained law's sensors: the rich law's and the wheel's velocity (road holding
+# needs the wheel's motion). Session 17 tried adding the suspension's deflection,
+# chosen on the development roads by a script of its own (kept round 0.127 against the
+# best feasible constant, tyre bound 0.9987); in this script's own run its round 1 came
+# out at a bound of 1.0017 instead, round 2 was kept, and the development roads gave
+# 0.048 (fresh sets 51000-53011: 0.047). On that development figure the deflection
+# was dropped again; the fresh sets stay those of the run (benchmarks/README.md).
 CONSTRAINED_FEATURES = RICH_FEATURES + ("wheel_velocity",)
 RICH_WIDTH = 16
 
