@@ -272,6 +272,7 @@ def test_cli_writes_the_plan_and_never_overwrites(tmp_path, design):
     argv += ["--sample-rate", MENU["sample_rate"]]
     status, stdout, stderr = _run(argv)
     assert status == 0, stderr
+    assert "jaxmr fit --starts 4" in stdout  # the fit it advises for the plan
     with open(out / "plan.csv", newline="") as f:
         rows = list(csv.DictReader(line for line in f if not line.startswith("#")))
     assert [r["test"] for r in rows] == [

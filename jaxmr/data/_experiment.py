@@ -255,7 +255,9 @@ def warn_implausible_units(
     velocity_measured: bool,
     where: str,
 ) -> None:
-    """`UserWarning`s for values that are implausible in SI units (thresholds above)."""
+    """`DataWarning`s for values that are implausible in SI units, a force of the
+    reversed sign and a velocity that disagrees with the displacement (thresholds
+    above)."""
     position, velocity, load = ("theta", "omega", "T") if rotary else ("x", "v", "F")
 
     def warn(message, column, suggested=None):
