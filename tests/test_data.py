@@ -198,6 +198,16 @@ def test_a_force_that_feeds_energy_into_the_motion_is_warned_about(rotary):
         jd.Experiment(t, 0 * x, 0 * v, 0.0, -hysteretic, rotary=rotary)
 
 
+def test_a_velocity_against_the_displacement_is_named_instead_of_the_force():
+    """A velocity sensor wired the other way round: the warning names `v`, and the
+    force (right, but against the reversed `v`) is not blamed."""
+    t, x, v = _sine(n=200)
+    force = 50.0 * np.tanh(v / 0.01) + 20.0 * v
+    with pytest.warns(jd.DataWarning, match=r"`v` runs against the derivative") as w:
+        jd.Experiment(t, x, -v, 0.0, force)
+    assert [(c.message.kind, c.message.column) for c in w] == [("sign", "v")]  # pyright: ignore[reportAttributeAccessIssue]
+
+
 def test_voltage_drive_and_rotary_are_not_checked_as_current_or_stroke():
     t, x, v = _sine(n=10)
     jd.Experiment(t, 100 * x, 100 * v, 500.0, drive="voltage", rotary=True)

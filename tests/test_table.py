@@ -350,6 +350,12 @@ def test_a_reversed_force_is_refused_and_a_minus_unit_negates_it(
     assert status == 1 and not out.exists()
     assert "a reversed sign, nothing done" in err and "column `F`" in err
     assert "F:-kN" in err and "--accept-units" in err
+    # A velocity declared the other way round is named, not the force.
+    spec = ["--columns", "t,x:mm,v:-mm/s,F:kN", "--current", "0"]
+    status, _ = _run(["convert", "table", files[1][0], *spec, "--out", out])
+    err = capsys.readouterr().err
+    assert status == 1 and not out.exists()
+    assert "column `v`" in err and "column `F`" not in err
     columns[1] = "t,x:mm,v:mm/s,F:-kN"
     status, _ = _run(["convert", "table", raw, *columns, "--out", out])
     assert status == 0, capsys.readouterr().err

@@ -161,8 +161,8 @@ def run_table(args: argparse.Namespace) -> int:
                     ),
                     accept=args.accept_units,
                     fix="declare the unit in --columns (e.g. x:mm, t:ms, i:mA)",
-                    sign_fix="negate the force in --columns: a minus sign before its "
-                    "unit (e.g. F:-kN, or F:- in N)",
+                    sign_fix="negate the column named above in --columns: a minus "
+                    "sign before its unit (e.g. F:-kN, v:-mm/s, or F:- in SI)",
                 )
             )
         except ValueError as e:

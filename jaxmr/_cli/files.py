@@ -52,9 +52,9 @@ def checking_units(
     read: Callable[[], _Read], *, accept: bool, fix: str, sign_fix: str
 ) -> _Read:
     """`read()`, refusing implausible data: the data layer's `DataWarning`s of kind
-    "unit" (a column in other units) and "sign" (a force read the other way round)
-    become a `CLIError` naming the column (and the unit its values look like), with
-    `fix` (how to declare the unit) or `sign_fix` (how to negate the force); with
+    "unit" (a column in other units) and "sign" (a force or velocity read the other
+    way round) become a `CLIError` naming the column (and the unit its values look
+    like), with `fix` (how to declare the unit) or `sign_fix` (how to negate it); with
     `accept` they stay warnings. The other warnings go on to the command's printer,
     once each."""
     with warnings.catch_warnings(record=True) as caught:
@@ -120,9 +120,9 @@ def read_experiments(
                         "DIR`"
                     ),
                     sign_fix=(
-                        "write the file with the force negated, e.g. with a minus "
-                        "sign before its unit: `jaxmr convert table RAW --columns "
-                        "t,x:mm,F:-kN ... --out DIR`"
+                        "write the file with the column named above negated, e.g. "
+                        "with a minus sign before its unit: `jaxmr convert table RAW "
+                        "--columns t,x:mm,F:-kN ... --out DIR` (or v:-mm/s)"
                     ),
                 )
         except ValueError as e:

@@ -77,7 +77,8 @@ class DataWarning(UserWarning):
     - `kind`: `"unit"` (a column's values are implausible in SI units), `"motion"`
       (a measured velocity and the displacement disagree: a step in one that the other
       does not show) or `"sign"` (the force has the opposite sign to jaxmr's
-      convention: it would feed energy into the motion).
+      convention, so that it would feed energy into the motion, or the measured
+      velocity runs against the displacement's derivative).
     - `column`: the column concerned (`"t"`, `"x"`, `"v"`, `"F"`, `"i"`; `"theta"`,
       `"omega"`, `"T"` for a brake).
     - `suggested`: the unit the values look like (e.g. `"mm"` for `x`), or None.
@@ -304,7 +305,22 @@ def warn_implausible_units(
                 "i",
                 "mA",
             )
-    if force is not None:
+    if velocity_measured and _velocity_reversed(t, x, v):
+        warnings.warn(
+            DataWarning(
+                f"{where}: `{velocity}` runs against the derivative of `{position}` "
+                f"(their mean product is below {MIN_NORMALISED_POWER:g} of their RMS "
+                f"values' product): one of them has the opposite sign; negate "
+                f"`{velocity}` (or `{position}`) so that `{velocity}` is the rate of "
+                f"`{position}`.",
+                kind="sign",
+                column=velocity,
+            ),
+            stacklevel=_user_stacklevel(sys._getframe()),
+        )
+        # The force's sign is then judged against a reversed velocity: left out, so
+        # that the one warning names the column to fix.
+    elif force is not None:
         _warn_force_sign(v, force, load, velocity, where)
     if velocity_measured:
         derivative = _rms(np.gradient(x, t))
@@ -320,6 +336,18 @@ def warn_implausible_units(
                 )
             else:  # units agree: do the samples agree with each other?
                 _warn_motion_steps(t, x, v, position, velocity, rotary, where)
+
+
+def _velocity_reversed(t, x, v) -> bool:
+    """Whether a measured velocity runs against the derivative of the displacement:
+    their mean product below `MIN_NORMALISED_POWER` of their RMS values' product (the
+    two sensors wired with opposite polarities; a consistent record gives about +1)."""
+    derivative = np.gradient(x, t)
+    scale = _rms(derivative) * _rms(v)
+    return (
+        bool(scale > 0)
+        and float(np.mean(derivative * v)) < MIN_NORMALISED_POWER * scale
+    )
 
 
 def _warn_force_sign(v, force, load, velocity, where) -> None:
@@ -411,7 +439,9 @@ class Experiment(eqx.Module):
     (the 95th percentile of $|x_{k+1} - x_k|$); and (kind `"sign"`) about a force
     that feeds energy into the motion, i.e. has the opposite sign to the convention
     below: its mean power $\overline{F v}$ below −0.3 of
-    $\mathrm{rms}(F)\,\mathrm{rms}(v)$.
+    $\mathrm{rms}(F)\,\mathrm{rms}(v)$; or (kind `"sign"`, column `v`) about a
+    measured velocity that runs against the derivative of `x` by the same measure
+    (then the force's sign is not judged).
 
     **Sign convention.** `force` is the force the device resists the motion with,
     counted positive along the velocity: $F = c\,v$ for a viscous damper, so that a
