@@ -305,14 +305,16 @@ def warn_implausible_units(
                 "i",
                 "mA",
             )
-    if velocity_measured and _velocity_reversed(t, x, v):
+    # The displacement's derivative, for the velocity column's sign and unit checks.
+    derivative = np.gradient(x, t) if velocity_measured else None
+    along = None if derivative is None else _normalised_product(derivative, v)
+    if along is not None and along < MIN_NORMALISED_POWER:
         warnings.warn(
             DataWarning(
                 f"{where}: `{velocity}` runs against the derivative of `{position}` "
-                f"(their mean product is below {MIN_NORMALISED_POWER:g} of their RMS "
-                f"values' product): one of them has the opposite sign; negate "
-                f"`{velocity}` (or `{position}`) so that `{velocity}` is the rate of "
-                f"`{position}`.",
+                f"(their mean product is {along:.2f} of their RMS values' product): "
+                f"one of them has the opposite sign; negate `{velocity}` (or "
+                f"`{position}`) so that `{velocity}` is the rate of `{position}`.",
                 kind="sign",
                 column=velocity,
             ),
@@ -322,11 +324,11 @@ def warn_implausible_units(
         # that the one warning names the column to fix.
     elif force is not None:
         _warn_force_sign(v, force, load, velocity, where)
-    if velocity_measured:
-        derivative = _rms(np.gradient(x, t))
+    if derivative is not None:
+        expected = _rms(derivative)
         measured = _rms(v)
-        if derivative > 0 and measured > 0:
-            ratio = measured / derivative
+        if expected > 0 and measured > 0:
+            ratio = measured / expected
             if not 1 / MAX_VELOCITY_RATIO <= ratio <= MAX_VELOCITY_RATIO:
                 warn(
                     f"the RMS of `{velocity}` is {ratio:g} times that of the derivative "
@@ -338,28 +340,20 @@ def warn_implausible_units(
                 _warn_motion_steps(t, x, v, position, velocity, rotary, where)
 
 
-def _velocity_reversed(t, x, v) -> bool:
-    """Whether a measured velocity runs against the derivative of the displacement:
-    their mean product below `MIN_NORMALISED_POWER` of their RMS values' product (the
-    two sensors wired with opposite polarities; a consistent record gives about +1)."""
-    derivative = np.gradient(x, t)
-    scale = _rms(derivative) * _rms(v)
-    return (
-        bool(scale > 0)
-        and float(np.mean(derivative * v)) < MIN_NORMALISED_POWER * scale
-    )
+def _normalised_product(a: np.ndarray, b: np.ndarray) -> float | None:
+    """mean(a b) / (rms(a) rms(b)), in [-1, 1]: +1 where `a` and `b` move together,
+    -1 where one is the other negated; None where either is all zero."""
+    scale = _rms(a) * _rms(b)
+    return float(np.mean(a * b)) / scale if scale > 0 else None
 
 
 def _warn_force_sign(v, force, load, velocity, where) -> None:
     """A `DataWarning` (kind "sign") where the force's mean power is clearly negative
     (`MIN_NORMALISED_POWER`): the record's force has the opposite sign to jaxmr's
     convention (a load cell read the other way round)."""
-    scale = _rms(force) * _rms(v)
-    if not scale > 0:
-        return  # no motion or no force: no direction to judge
-    power = float(np.mean(force * v)) / scale
-    if power >= MIN_NORMALISED_POWER:
-        return
+    power = _normalised_product(force, v)
+    if power is None or power >= MIN_NORMALISED_POWER:
+        return  # no motion or no force to judge, or the convention's sign
     warnings.warn(
         DataWarning(
             f"{where}: `{load}` works against `{velocity}` (mean power {load}·{velocity} "
