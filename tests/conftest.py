@@ -30,24 +30,25 @@ if _OWN_CACHE:
 import jax  # noqa: E402 - after the environment above, which jax reads on import
 
 import jaxmr  # noqa: E402
-from tests.xla_flags import FAST_COMPILE_FLAGS  # noqa: E402
+from tests.xla_flags import FAST_COMPILE_VARIABLE, compile_fast  # noqa: E402
 
 # As a user is advised to (and the command line does): each simulation loop compiled
 # as one kernel; one CPU device (the tests that need two start their own processes).
 # Set before JAX's backend starts, and inherited by those processes and the kernels.
 jaxmr.devices.configure_cpu(devices=1)
-# The suite is bound by XLA's compilation, most of it LLVM's optimisation of programs
-# that then run for milliseconds: without it tests/test_models.py took 77 s instead of
-# 101 s. The programs compute the same operations (the tests' tolerances and the
-# bit-for-bit comparisons, which compare programs compiled alike, hold); the notebooks,
-# which run long fits, put the flags back off for their kernels (tests/test_notebooks.py).
-if "xla_backend_optimization_level" not in os.environ["XLA_FLAGS"]:
-    os.environ["XLA_FLAGS"] += " " + " ".join(FAST_COMPILE_FLAGS)
+# Faster compilation into slower programs (tests/xla_flags.py); the notebooks whose
+# fits run longer than they compile go back to the user's settings
+# (tests/test_notebooks.py).
+compile_fast()
 
 jax.config.update("jax_enable_x64", True)
 jax.config.update("jax_numpy_dtype_promotion", "strict")
 # Where jax was imported before this file (by a plugin), the environment came too late.
 jax.config.update("jax_compilation_cache_dir", os.environ["JAX_COMPILATION_CACHE_DIR"])
+jax.config.update(
+    "jax_disable_most_optimizations",
+    os.environ[FAST_COMPILE_VARIABLE].lower() in ("1", "true"),
+)
 jax.config.update(
     "jax_persistent_cache_min_compile_time_secs",
     float(os.environ.get("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "1.0")),
