@@ -30,9 +30,9 @@ def test_notebook_executes(path, monkeypatch):
         os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")])),
     )
     if path.name.startswith(RUN_LONGER_THAN_THEY_COMPILE):
-        # Their fits and tuning runs under the suite's fast compilation took longer
-        # (tests/xla_flags.py): 02 45 s instead of 34 s, 06 32 s as without; the
-        # others gained 0-5 s each.
+        # Their fits and tuning runs took longer under the suite's fast compilation
+        # (tests/xla_flags.py): notebook 02 45 s instead of 34 s, 06 32 s either way;
+        # the other notebooks gained 0-5 s each.
         flags = without_fast_compile_flags(os.environ.get("XLA_FLAGS", ""))
         monkeypatch.setenv("XLA_FLAGS", flags)
         monkeypatch.delenv(FAST_COMPILE_VARIABLE, raising=False)
