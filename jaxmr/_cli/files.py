@@ -41,8 +41,9 @@ ACCEPT_UNITS_HELP = (
     "in other units, or read the other way round)"
 )
 
-# The data layer's `DataWarning` kinds that stop a command unless --accept-units.
-_REFUSED = ("unit", "sign")
+# The data layer's `DataWarning` kinds that stop a command unless --accept-units, and
+# how the refusal names each.
+_REFUSED = {"unit": "implausible unit(s)", "sign": "a reversed sign"}
 
 
 _Read = TypeVar("_Read")
@@ -73,20 +74,14 @@ def checking_units(
         for u in refused:
             looks = f", which look like {u.suggested}" if u.suggested else ""
             lines.append(f"{u} [column `{u.column}`{looks}]")
-        fixes = [
-            text
-            for kind, text in (("unit", fix), ("sign", sign_fix))
-            if any(u.kind == kind for u in refused)
-        ]
-        what = " and ".join(
-            {"unit": "implausible unit(s)", "sign": "a reversed sign"}[kind]
-            for kind in _REFUSED
-            if any(u.kind == kind for u in refused)
-        )
+        kinds = [kind for kind in _REFUSED if any(u.kind == kind for u in refused)]
+        fixes = {"unit": fix, "sign": sign_fix}
         raise CLIError(
-            f"{what}, nothing done:\n  "
+            " and ".join(_REFUSED[kind] for kind in kinds)
+            + ", nothing done:\n  "
             + "\n  ".join(lines)
-            + f"\n{'; '.join(fixes)}; or pass --accept-units if the values are right"
+            + f"\n{'; '.join(fixes[kind] for kind in kinds)}; or pass --accept-units "
+            "if the values are right"
         )
     return result
 
