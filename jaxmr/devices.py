@@ -1,5 +1,6 @@
-"""The devices jaxmr computes on: CPU cores as XLA devices, and arrays gathered from
-every process of a `jax.distributed` run.
+"""The devices jaxmr computes on: CPU cores as XLA devices, arrays gathered from every
+process of a `jax.distributed` run, and where a process keeps the fit's traced
+programs for the next one.
 
 ```python
 import jaxmr.devices
@@ -13,5 +14,6 @@ backend.
 
 from ._cpu import configure_cpu as configure_cpu
 from ._distribute import gather as gather
+from ._traced import traced_programs_in as traced_programs_in
 
-__all__ = ["configure_cpu", "gather"]
+__all__ = ["configure_cpu", "gather", "traced_programs_in"]

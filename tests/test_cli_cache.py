@@ -32,13 +32,15 @@ import json, sys
 from jaxmr.devices import configure_cpu
 configure_cpu()
 import jax.monitoring
-events = {"hits": 0, "backend_compile_s": 0.0}
+events = {"hits": 0, "backend_compile_s": 0.0, "traced": []}
 def count(event, **kwargs):
     if event == "/jax/compilation_cache/cache_hits":
         events["hits"] += 1
-def duration(event, seconds, **kwargs):
+def duration(event, seconds, fun_name="", **kwargs):
     if event == "/jax/core/compile/backend_compile_duration":
         events["backend_compile_s"] += seconds
+    if event == "/jax/core/compile/jaxpr_trace_duration":
+        events["traced"].append(fun_name)
 jax.monitoring.register_event_listener(count)
 jax.monitoring.register_event_duration_secs_listener(duration)
 from jaxmr._cli import main
@@ -97,6 +99,10 @@ def test_a_second_fit_reads_the_first_ones_programs(tmp_path):
     assert f"compilation cache: {folder}" in first.stdout.splitlines()
     written = _entries(folder)
     assert written, "the first fit stored no compiled program"
+    # And its traced programs (`jaxmr._traced`): the step, the reported simulation,
+    # the statistics' Jacobian.
+    programs = sorted((folder / cache.PROGRAMS).glob("*.jaxexport"))
+    assert len(programs) == 3, programs
     # The second, with the folder from JAXMR_COMPILATION_CACHE.
     second = subprocess.run(
         [sys.executable, "-c", _COUNTING_RUN, *fit, "--out", str(tmp_path / "b.json")],
@@ -112,6 +118,10 @@ def test_a_second_fit_reads_the_first_ones_programs(tmp_path):
     # Every program the first fit stored was read back, and none compiled anew.
     assert events["hits"] >= len(written), (events, len(written))
     assert _entries(folder) == written
+    # Nor was the model traced for them: they were read back.
+    kept = {"_step", "simulate", "value_and_jacobian_jit"}
+    assert not kept & set(events["traced"]), events["traced"]
+    assert sorted((folder / cache.PROGRAMS).glob("*.jaxexport")) == programs
     # The same fit: the same parameters.
     a, b = (json.loads((tmp_path / n).read_text()) for n in ("a.json", "b.json"))
     assert a["model"] == b["model"]

@@ -66,7 +66,12 @@ def main(argv: Sequence[str | os.PathLike] | None = None) -> int:
         # The persistent compilation cache (`cache.py`): by default for the program,
         # where `jaxmr fit` then says it lives.
         args.compilation_cache_folder = cache.configure(args.compilation_cache, program)
-        with _Warnings(args.command) as args.warnings:
+        # The fit's traced programs beside the compiled ones, for this command only:
+        # a caller's later library calls write nothing.
+        from jaxmr.devices import traced_programs_in
+
+        programs = cache.programs(args.compilation_cache_folder)
+        with _Warnings(args.command) as args.warnings, traced_programs_in(programs):
             return args.run(args)
     except CLIError as e:
         print(f"jaxmr {args.command}: error: {e}", file=sys.stderr)

@@ -9,7 +9,9 @@ the `JAXMR_COMPILATION_CACHE` environment variable; JAX's own
 `~/Library/Caches/jaxmr/xla`, on Windows `%LOCALAPPDATA%\\jaxmr\\cache\\xla`). `off`
 in the option or the variable turns it off. The folder may be deleted at any time; it
 grows by one file per distinct program (JAX evicts nothing without the optional
-`filelock` package).
+`filelock` package). Its `programs` folder holds the fit's traced programs
+(`jaxmr.devices.traced_programs_in`), which a later run reads back without tracing
+the model again.
 
 Set up when a command starts (`configure`), never on import: jaxmr the library leaves
 JAX's configuration alone. Called from Python (`jaxmr._cli.main` with JAX already
@@ -28,6 +30,16 @@ OFF = "off"
 # compiles its fit's few large programs and scores of small ones (array operations
 # run outside jit, each compiled on first use), which together took seconds.
 MIN_COMPILE_SECONDS = 0.0
+# The subfolder of the fit's traced programs (`jaxmr.devices.traced_programs_in`),
+# which a later run reads back without tracing the model again (`programs`).
+PROGRAMS = "programs"
+
+
+def programs(folder: Path | None) -> Path | None:
+    """Where a command keeps its traced programs: in the compilation cache's folder
+    (`folder`, None when it is off), deleted with it."""
+    return None if folder is None else folder / PROGRAMS
+
 
 HELP = (
     "the folder of the persistent compilation cache, which a later run of the same "

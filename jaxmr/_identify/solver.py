@@ -25,6 +25,7 @@ from .._custom_types import Array, Bool, Float
 from .._distribute import BATCH as MESH_AXIS, replicate, to_host
 from .._misc import to_device
 from .._parameter import Bounded, Fixed, Positive, free_filter, is_parameter
+from .._traced import cached
 from .residual import traced_once, value_and_jacobian, value_and_jacobian_jit
 from .result import Outcome, StopReason
 
@@ -456,7 +457,9 @@ def _init(solver, ys, args, data_axis, chunk, mesh):
     return _over_batch(one, (ys,), args, data_axis, chunk, mesh)
 
 
-@eqx.filter_jit
+# The step's outputs: the points, the state's arrays, the losses, the points they
+# belong to, and the flags (their structure, for a step read back: `cached`).
+@cached(lambda solver, ys, dynamic, *_: (ys, dynamic, 0, ys, 0, 0))
 def _step(solver, ys, dynamic, static_state, args, data_axis, chunk, mesh):
     def one(y, dyn, args):
         state = eqx.combine(dyn, static_state)
