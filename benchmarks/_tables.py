@@ -602,6 +602,30 @@ TABLES = (
         ),
     ),
     Table(
+        "trust_region_choice",
+        "trust_region_choice.py",
+        (
+            Row("chosen_initial_radius", "the first trust region the rule chose"),
+            *(
+                row
+                for r in ("1.0", "10.0", "100.0")
+                for row in (
+                    Row(
+                        f"summary/{r}/worst_loss_over_best",
+                        f"radius {r[:-2]}: worst final loss over the best radius's, "
+                        "over the 14 fits",
+                    ),
+                    Row(
+                        f"summary/{r}/geomean_time_ratio",
+                        f"radius {r[:-2]}: time to the target over radius 1's, "
+                        "geometric mean (compilation excluded)",
+                    ),
+                    Row(f"summary/{r}/steps", f"radius {r[:-2]}: steps, all fits"),
+                )
+            ),
+        ),
+    ),
+    Table(
         "screening_choice",
         "screening_choice.py",
         (

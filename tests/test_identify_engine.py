@@ -151,6 +151,28 @@ def test_a_second_fit_with_a_new_solver_instance_does_not_recompile():
     assert compiled == []
 
 
+def test_the_first_trust_region_is_the_solver_s_and_must_be_positive():
+    # Radius 1 is the default (benchmarks/trust_region_choice.py); a bolder first
+    # step takes another path to the same optimum on this well-posed fit.
+    runs = dahl_runs((5.0,), (3.0,), samples=41)
+    default, bold = (
+        jaxmr.fit(
+            dahl_guess(),
+            runs,
+            solver=jaxmr.FastLevenbergMarquardt(initial_radius=r),
+            progress=False,
+        )
+        for r in (1.0, 1e3)
+    )
+    assert jaxmr.FastLevenbergMarquardt().initial_radius == 1.0
+    assert default.history[1] != bold.history[1]  # the first damped step differs
+    # Both converge to the noise floor: within 1e-6 of each other's loss.
+    assert bold.loss == pytest.approx(default.loss, rel=1e-6)
+    for bad in (0.0, -1.0, float("nan")):
+        with pytest.raises(ValueError, match="initial_radius"):
+            jaxmr.FastLevenbergMarquardt(initial_radius=bad)
+
+
 def test_packing_data_and_building_parameters_compile_nothing():
     # Sample counts no other test uses, so that JAX's in-process cache of eager
     # programs cannot hide a compilation: outside a trace `jnp.asarray` of a NumPy

@@ -77,14 +77,26 @@ class FastLevenbergMarquardt(optx.AbstractLeastSquaresSolver):
 
     **Arguments:** `rtol`, `atol`: optimistix's Cauchy convergence test (an accepted
     step that changes every variable by less than `atol + rtol·|y|` and every residual
-    by less than `atol + rtol·|r|`); `axis_name`: the name of the `vmap` axis of a
-    batch of problems, if any.
+    by less than `atol + rtol·|r|`); `initial_radius`: the first damped step's trust
+    region (λ = 1/`initial_radius`, on variables whose Jacobian columns `jaxmr.fit`
+    scales to unit norm); `axis_name`: the name of the `vmap` axis of a batch of
+    problems, if any.
     """
 
     rtol: float = 1e-8
     atol: float = 1e-10
     norm: Callable = optx.max_norm
+    initial_radius: float = 1.0
     axis_name: str | None = eqx.field(static=True, default=None)
+
+    def __check_init__(self):
+        if not (
+            isinstance(self.initial_radius, (int, float)) and self.initial_radius > 0
+        ):
+            raise ValueError(
+                "FastLevenbergMarquardt: `initial_radius` must be a positive number, "
+                f"got {self.initial_radius!r}."
+            )
 
     def init(self, fn, y, args, options, f_struct, aux_struct, tags):
         flat, _ = ravel_pytree(y)
@@ -98,7 +110,7 @@ class FastLevenbergMarquardt(optx.AbstractLeastSquaresSolver):
         return _LMState(
             first_step=jnp.array(True),
             y_eval=flat,
-            radius=jnp.array(1.0, flat.dtype),
+            radius=jnp.array(self.initial_radius, flat.dtype),
             residual=residual,
             gram=jnp.zeros((flat.size, flat.size), flat.dtype),
             gradient=jnp.zeros(flat.size, flat.dtype),
