@@ -166,8 +166,9 @@ def test_the_first_trust_region_is_the_solver_s_and_must_be_positive():
     )
     assert jaxmr.FastLevenbergMarquardt().initial_radius == 1.0
     assert default.history[1] != bold.history[1]  # the first damped step differs
-    # Both converge to the noise floor: within 1e-6 of each other's loss.
-    assert bold.loss == pytest.approx(default.loss, rel=1e-6)
+    # Both stop at the noise floor: within the stopping rule's relative `ftol`
+    # (1e-4) of each other's loss.
+    assert bold.loss == pytest.approx(default.loss, rel=1e-4)
     for bad in (0.0, -1.0, float("nan")):
         with pytest.raises(ValueError, match="initial_radius"):
             jaxmr.FastLevenbergMarquardt(initial_radius=bad)

@@ -102,3 +102,42 @@ def test_nees_spencer_1997_baseline(nees):
     # The record starts mid-motion: the first 0.2 s are left out of every score.
     reference = record_nrmse(spencer, [nees], discard=0.2, remove_mean=True)[0]
     assert abs(reference - 0.24) <= 0.03, reference  # measured 0.238
+
+
+def test_a_fit_crawling_along_a_valley_is_not_stopped_as_stalled(utfsm):
+    # LuGre on nine UTFSM records (0, 0.5 and 1 A; 2.5 cycles each, ~250 samples a
+    # cycle, the first discarded) creeps along a valley: from step 8 on, three steps
+    # in a row lowered its loss by less than `ftol` (1e-4) while its Gauss–Newton
+    # model still promised 1.2 %. Counted as a stall, the fit stopped there at a loss
+    # of 0.0321; followed until the model promises less than `ftol`, it reaches
+    # 0.0249. The bound 0.026 lies between the two, 4 % above the optimum (what
+    # another step order or compiler may move it by is far smaller).
+    periods = dict(zip([e.name for e in utfsm], utfsm_first_cycle(utfsm)))
+    widths = dict(zip([e.name for e in utfsm], utfsm_smoothing(utfsm)))
+    records = []
+    for e in utfsm:
+        pair = e.name.partition("Hz")[0] + "Hz"
+        if pair not in ("2mm5Hz", "10mm1Hz", "5mm3Hz"):
+            continue
+        if jd.utfsm_test_conditions(e).current not in (0.0, 0.5, 1.0):
+            continue
+        t0 = float(np.asarray(e.t)[0])
+        cut = e.window(None, t0 + 2.5 * periods[e.name])
+        step = max(1, int(round(len(cut) / (2.5 * 250))))
+        s = slice(None, None, step)
+        every = jd.Experiment(
+            *(np.asarray(a)[s] for a in (cut.t, cut.x, cut.v, cut.current, cut.force)),
+            name=e.name,
+        )
+        records.append((every, e.name))
+    assert len(records) == 9
+    experiments = [r for r, _ in records]
+    result = jaxmr.fit(
+        jaxmr.templates.MODEL_TEMPLATES["lugre"](experiments),
+        experiments,
+        discard=[periods[n] for _, n in records],
+        smoothing=[widths[n] for _, n in records],
+        progress=False,
+    )
+    assert result.loss < 0.026, (result.loss, result.num_steps, result.stop)
+    assert result.converged, result.outcome
