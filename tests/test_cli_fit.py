@@ -28,7 +28,7 @@ import pytest
 import jaxmr
 import jaxmr.data
 import jaxmr.scores
-from jaxmr._cli import main
+from jaxmr._cli import fit as fit_command, main
 from jaxmr._cli.fit import _FitLog
 from jaxmr.templates import MODEL_TEMPLATES
 
@@ -111,9 +111,15 @@ def files(tmp_path_factory):
 @pytest.fixture(scope="module")
 def auto(files, tmp_path_factory):
     out = tmp_path_factory.mktemp("auto") / "auto.json"
-    status, stdout = _run(
-        ["fit", "--model", "auto", "--candidates", "bingham,dahl", "--out", out, *files]
-    )
+    # A progress line every step (the output is not a terminal; by default every 10th,
+    # and these fits stop within 5): `test_auto_prints_and_records_each_candidates_
+    # stages` reads them.
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(fit_command, "PROGRESS_STEPS", 1)
+        status, stdout = _run(
+            ["fit", "--model", "auto", "--candidates", "bingham,dahl", "--out", out]
+            + list(files)
+        )
     return status, out, stdout
 
 
@@ -822,9 +828,13 @@ def test_auto_prints_and_records_each_candidates_stages(auto):
     steps of its fits; the JSON has each stage's time and the words of `converged`."""
     status, out, stdout = auto
     assert status == 0
-    # A line every 10 steps of a fit, named by its candidate and stage (which of the
-    # fits runs 10 steps depends on the last bits of their steps).
-    assert re.search(r"^ +(bingham|dahl) \([a-z ]+\) step +10: loss", stdout, re.M)
+    # A line every step of every fit (`auto`'s PROGRESS_STEPS), named by its
+    # candidate and stage.
+    stages = {"bingham": ("screening", "cv"), "dahl": ("screening", "cv", "template")}
+    for candidate, its_stages in stages.items():
+        for stage in its_stages:
+            line = rf"^ +{candidate} \({stage}\) step +1: loss"
+            assert re.search(line, stdout, re.M), (line, stdout)
     report = json.loads(out.read_text())["report"]
     assert report["outcome"].startswith("converged") == report["converged"]
     for row in report["selection"]["ranking"]:

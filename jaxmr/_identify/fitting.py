@@ -184,10 +184,10 @@ def fit(
 
     Stopping (`result.stop`, a `jaxmr.StopReason`): LM's own test (the `solver`'s
     `rtol`, `atol`), or stalled progress — the best loss has not improved by a
-    relative `ftol` in `patience` steps, or the Gauss–Newton model at the best point
-    promises less than that (the undamped step's predicted reduction; for solvers
-    other than `FastLevenbergMarquardt`, which do not say, 3 accepted steps without
-    that gain) — or `max_steps`, or a failed solve (reported as failed). The default
+    relative `ftol` in `patience` steps, or in 3 accepted steps (steps that lowered
+    it) while the Gauss–Newton model at the best point promises no more (the undamped
+    step's predicted reduction; solvers other than `FastLevenbergMarquardt` do not
+    say) — or `max_steps`, or a failed solve (reported as failed). The default
     `ftol = 1e-4` is far below what noise makes significant (the loss of N residuals
     at the noise floor fluctuates by ~sqrt(2/N), 1.4 % for N = 10 000). Ctrl-C, or
     the caller's `stop` flag, stops the fit with the best parameters so far

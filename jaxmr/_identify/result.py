@@ -32,8 +32,9 @@ class StopReason(enum.Enum):
 
     TOLERANCE = "converged (Levenberg–Marquardt's tolerance met)"
     STALLED = (
-        "stalled: no relative improvement above `ftol` in `patience` steps, or the "
-        "Gauss–Newton model promises less (the noise floor)"
+        "stalled: no relative improvement above `ftol` in `patience` steps, or in "
+        "3 accepted steps with a Gauss–Newton model that promises no more (the noise "
+        "floor)"
     )
     MAX_STEPS = "reached max_steps"
     SOLVER_FAILED = (

@@ -580,15 +580,20 @@ def _unbatched(members, data_axis, chunk) -> bool:
     )
 
 
-# A member has also stalled at the noise floor when the Gauss–Newton model at its best
-# point promises less than a relative `ftol` (`FastLevenbergMarquardt`'s
-# `available`, its undamped step's predicted reduction): on the 30 UTFSM records the
-# joint fit's promise fell from 1e-3 to 1.5e-5 of the loss in two steps, then to 1e-7,
-# while the loss moved by 3e-6 in all. Small accepted steps alone do not say so: on
-# the UTFSM training records LuGre made three accepted steps of less than 1e-4 while
-# its model still promised 1.2 %, and crawled on from a loss of 0.0321 to 0.0249.
-# Solvers that do not say what their model promises stall after ACCEPTED_PATIENCE
-# such steps.
+# A member has also stalled when this many *accepted* steps (steps that lowered its
+# loss) since its last gain of a relative `ftol` have not made another, and the
+# Gauss–Newton model at its best point promises less than that gain too
+# (`FastLevenbergMarquardt`'s `available`, its undamped step's predicted reduction;
+# other solvers do not say, and stall on the steps alone). Small accepted steps while
+# the region grows tenfold after each mean the bottom is reached: on the 30 UTFSM
+# records the joint fit crept for 8 more steps (12 s) after its last gain of 1e-4,
+# improving the loss by 3e-6 in all, its model promising 1e-5 to 1e-7 of the loss.
+# But small steps alone do not say so: on the UTFSM training records LuGre made three
+# accepted steps of less than 1e-4 while its model still promised 1.2 %, and crawled
+# on from a loss of 0.0321 to 0.0249. The promise alone is no test either: a promise
+# below `ftol` may still be a parameter about one standard error from the optimum
+# with 10 000 white residuals (a step of one standard error changes the loss by about
+# 1/N of it), which the accepted steps that follow still remove.
 ACCEPTED_PATIENCE = 3
 
 
@@ -610,8 +615,8 @@ def iterate(
     Axis 0 of `ys` is the batch (starts, or independent problems when `data_axis` is
     0 and the data in `args` are batched too). Keeps each member's best parameters,
     stops each on its own convergence, failure or stall (no relative improvement of
-    `ftol` in `patience` steps, or a model that promises less, see
-    `ACCEPTED_PATIENCE`). `chunk`,
+    `ftol` in `patience` steps, or in `ACCEPTED_PATIENCE` accepted steps with a model
+    that promises no more). `chunk`,
     `mesh`: see `_over_batch`. `stop`: a `threading.Event` (anything with `is_set()`)
     checked after every step: once set, the loop stops with the best parameters so
     far (`StopReason.INTERRUPTED`; at least one step, the starts' evaluation, is
@@ -662,11 +667,9 @@ def iterate(
             report(k, float(np.min(best_loss)))
             failed |= active & bad
             converged |= active & done & ~bad
-            floor = (
-                accepted_since >= ACCEPTED_PATIENCE
-                if available is None
-                else available <= ftol * loss
-            )
+            floor = accepted_since >= ACCEPTED_PATIENCE
+            if available is not None:
+                floor &= available <= ftol * loss
             stalled |= active & (((k - last_improvement) >= patience) | floor)
             if not np.any(~(converged | failed | stalled)):
                 break
