@@ -130,6 +130,8 @@ BENCHMARKS = (
     Benchmark(
         "calibration",
         "calibration.py",
+        # The headline's set-up: the fresh seeds, 100 refits per case.
+        ("--fresh", "--refits", "100"),
         quick=("--refits", "3", "--cases", "equal_white"),
     ),
     # The headline's set-up: one process per dataset (`--separate`).
