@@ -128,3 +128,30 @@ def test_a_damaged_file_is_written_again(tmp_path, fresh_memory, monkeypatch):
     with _traced.traced_programs_in(tmp_path):
         np.testing.assert_array_equal(np.asarray(double(x)), [0.0, 2.0, 4.0])
     assert path.stat().st_size > 100  # written whole again
+
+
+def test_fit_each_s_chunked_step_is_kept_and_gives_the_same_bits(
+    tmp_path, fresh_memory
+):
+    # `fit_each` steps its problems in chunks inside `shard_map` over the devices (one
+    # in the test session): that program too is exported, and read back gives the
+    # same fits.
+    runs = dahl_runs((3.0, 8.0), (1.0, 3.0), samples=41)
+
+    def values():
+        results = jaxmr.fit_each(dahl_guess(), runs, progress=False, max_steps=3)
+        return [r.values for r in results]
+
+    plain = values()
+    with _traced.traced_programs_in(tmp_path):
+        first = values()
+    kept = _kept(tmp_path)
+    # The column scale's Jacobian and the chunked step.
+    assert len(kept) == 2, kept
+    _traced._MEMORY.clear()
+    with _traced.traced_programs_in(tmp_path):
+        again = values()
+    assert _kept(tmp_path) == kept
+    for a, b, c in zip(plain, first, again, strict=True):
+        np.testing.assert_array_equal(a, b)
+        np.testing.assert_array_equal(b, c)
