@@ -29,7 +29,6 @@ import functools
 import hashlib
 import importlib.metadata
 import os
-import tempfile
 import types
 from collections.abc import Callable
 from pathlib import Path
@@ -37,6 +36,8 @@ from pathlib import Path
 import equinox as eqx
 import jax
 import numpy as np
+
+from .data._files import write_atomically
 
 _FOLDER: Path | None = None
 _MEMORY: dict[str, "jax.export.Exported | None"] = {}  # None: not exportable
@@ -102,7 +103,7 @@ def _describe(x) -> str:
         return "dict(" + ",".join(f"{k}:{v}" for k, v in items) + ")"
     if isinstance(x, frozenset):
         return "frozenset(" + ",".join(sorted(_describe(v) for v in x)) + ")"
-    if isinstance(x, np.ndarray) or isinstance(x, np.generic):
+    if isinstance(x, (np.ndarray, np.generic)):
         a = np.asarray(x)
         digest = hashlib.sha256(np.ascontiguousarray(a).tobytes()).hexdigest()
         return f"ndarray({a.dtype},{a.shape},{digest})"
@@ -195,8 +196,8 @@ def _key(name: str, leaves, static) -> str:
 
 def cached(out_like: Callable) -> Callable:
     """A decorator: `eqx.filter_jit(fn)`, whose program is kept on disk
-    (`traced_programs_in`)
-    and read back by a later process with the same static arguments and input shapes.
+    (`traced_programs_in`) and read back by a later process with the same static
+    arguments and input shapes.
 
     `fn` returns a pytree of arrays whose structure `out_like(*args)` gives (any
     pytree of that structure): a process that reads the program back does not trace
@@ -274,13 +275,11 @@ def _load(key: str):
 
 
 def _write(key: str, blob: bytes | bytearray) -> None:
-    """Written whole or not at all (a temporary file renamed): a process reading the
-    folder meanwhile sees no file or the whole one."""
+    """Written whole or not at all (`write_atomically`): a process reading the folder
+    meanwhile sees no file or the whole one."""
     assert _FOLDER is not None
     try:
         _FOLDER.mkdir(parents=True, exist_ok=True)
-        with tempfile.NamedTemporaryFile(dir=_FOLDER, delete=False) as f:
-            f.write(blob)
-        os.replace(f.name, _path(key))
+        write_atomically(_path(key), lambda path: path.write_bytes(blob))
     except OSError:
         pass  # a read-only or full disk: the program is traced again next time

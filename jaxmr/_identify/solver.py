@@ -667,10 +667,10 @@ def iterate(
             report(k, float(np.min(best_loss)))
             failed |= active & bad
             converged |= active & done & ~bad
-            floor = accepted_since >= ACCEPTED_PATIENCE
+            at_noise_floor = accepted_since >= ACCEPTED_PATIENCE
             if available is not None:
-                floor &= available <= ftol * loss
-            stalled |= active & (((k - last_improvement) >= patience) | floor)
+                at_noise_floor &= available <= ftol * loss
+            stalled |= active & (((k - last_improvement) >= patience) | at_noise_floor)
             if not np.any(~(converged | failed | stalled)):
                 break
             if stop is not None and stop.is_set():
