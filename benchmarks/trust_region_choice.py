@@ -34,7 +34,7 @@ import time
 from pathlib import Path
 
 import _generalisation_data as gd
-from _fit_baselines import TARGET, CompileClock, LossTrace
+from _fit_baselines import TARGET, CompileClock, LossTrace, timed_figures
 from _report import write_figures
 
 import jaxmr
@@ -94,17 +94,16 @@ def one_fit(dataset, template: str, radius: float) -> dict:
 
 
 def to_target(fit: dict, target: float) -> dict:
+    """The fit's time to `target`, compilation excluded (`timed_figures`)."""
     trace = LossTrace(fit["started"])
     trace.points = fit["trace"]
     clock = CompileClock()
     clock.spans = fit["compile_spans"]
-    reached = trace.time_to(target)
-    seconds = fit["total_seconds"] if reached is None else reached
-    compile_seconds = clock.seconds(until=fit["started"] + seconds)
+    timed = timed_figures(trace, clock, target, fit["total_seconds"])
     return {
-        "reached": reached is not None,
-        "seconds_to_target": seconds - compile_seconds,
-        "compile_seconds": compile_seconds,
+        "reached": timed["reached"],
+        "seconds_to_target": timed["seconds_excluding_compile"],
+        "compile_seconds": timed["compile_seconds"],
     }
 
 
