@@ -17,7 +17,7 @@ from ._damper import with_fitted_range
 from ._fitted_range import FittedRange, check_fitted_range
 from ._integrate import FixedStep
 from ._metrics import dissipated_energy
-from ._misc import is_concrete, rk4_step, warn_if_float32
+from ._misc import Check, is_concrete, rk4_step, warn_if_float32
 from ._road import RandomRoad
 from ._signal import AbstractSignal, as_signal
 from ._solution import RESULTS
@@ -191,13 +191,18 @@ def check_sensors(
     return sensors
 
 
-def _system_checks(system, q0, i_max):
-    # The damper's laws over every current the controller may command, [0, i_max].
-    zero = jnp.zeros((), q0.dtype)
-    checks = list(system.constraints()) + system.damper.hysteresis.checks_over(
-        zero, jnp.asarray(i_max, q0.dtype)
+def system_checks(system, i_max, dtype) -> list[Check]:
+    """What `simulate_system` checks before it runs: the system's own constraints and
+    its damper's laws over every current the controller may command, [0, `i_max`]
+    [A]. `fit_system` asks the same of each trial point (`_validity`)."""
+    zero = jnp.zeros((), dtype)
+    return list(system.constraints()) + system.damper.hysteresis.checks_over(
+        zero, jnp.asarray(i_max, dtype)
     )
-    for check in checks:
+
+
+def _system_checks(system, q0, i_max):
+    for check in system_checks(system, i_max, q0.dtype):
         # The message quotes a value only where it is concrete (`Check.message`).
         q0 = eqx.error_if(
             q0,
@@ -609,6 +614,7 @@ def _simulate_system(
     unroll=1,
     sensors: Sensors | str | None = None,
     key=None,
+    checks: bool = True,
 ) -> SystemSolution:
     dt, delay, substeps = sampling.dt, sampling.delay, integrator.substeps
     samples = int(round(duration / dt))
@@ -625,8 +631,11 @@ def _simulate_system(
             f"states {system.state_names}, got {q0.shape}."
         )
     # The checks guard a value the loop uses (an unused `error_if` is optimised away).
+    # `checks=False`: the caller asked `system_checks` itself (`fit_system` swaps an
+    # invalid trial point for a valid one); each `error_if` cost ~30 ms of tracing.
     i_max = jnp.asarray(controller.i_max, dtype=t0.dtype)
-    q0 = _system_checks(system, q0, i_max)
+    if checks:
+        q0 = _system_checks(system, q0, i_max)
     nq = q0.shape[0]
 
     def split(y):

@@ -207,8 +207,12 @@ def test_a_redundant_group_is_named_once():
     # A pair correlated beyond 0.99 is one group of two, the rest stays silent.
     pair = np.eye(4)
     pair[0, 1] = pair[1, 0] = 0.999
-    messages = poorly_determined(values, np.full(4, 0.1), pair, names)
+    messages = poorly_determined(values, np.full(4, 0.2), pair, names)  # a: 20 %
     assert len(messages) == 1 and "2 parameters are redundant" in messages[0]
     assert "a = " in messages[0] and "b = " in messages[0]
+    # The same pair known within 10 % each (a 10 %, b 5 %): correlated, determined.
+    assert poorly_determined(values, np.full(4, 0.1), pair, names) == []
+    # The group of three known within 0.1 %: no message either.
+    assert poorly_determined(values, values * 1e-3, corr, names) == []
     # No group, no large error: no message.
     assert poorly_determined(values, np.full(4, 0.1), np.eye(4), names) == []

@@ -17,7 +17,13 @@ import jax.numpy as jnp
 import numpy as np
 import optimistix as optx
 
-from .._closed_loop import Sampling, _as_controller, simulate_system
+from .._closed_loop import (
+    Sampling,
+    _as_controller,
+    _excitation_checks,
+    _simulate_system,
+    system_checks,
+)
 from .._control.base import AbstractController
 from .._custom_types import Array, Float
 from .._damper import with_fitted_range
@@ -192,20 +198,20 @@ def _stack_records(records, system, dt, discard) -> _SystemData:
     )
 
 
-def _validity(system) -> Array:
-    """Whether the system passes the checks `simulate_system` makes before it runs."""
-    checks = list(system.constraints()) + list(
-        system.damper.hysteresis.at(0.0).constraints()
-    )
+def _validity(system, sim: _Simulation) -> Array:
+    """Whether the system passes the checks `simulate_system` makes before it runs
+    (`system_checks`: over every current the controller may command)."""
+    dtype = jnp.result_type(float)
+    checks = system_checks(system, sim.controller.i_max, dtype)
     if not checks:
         return jnp.array(True)
-    return jnp.all(jnp.stack([jnp.asarray(check.ok) for check in checks]))
+    return jnp.all(jnp.stack([jnp.all(jnp.asarray(check.ok)) for check in checks]))
 
 
 def _simulate_records(system, data: _SystemData, sim: _Simulation):
     """The simulated output at every record's samples, padded like `data.measured`;
     and whether `system` was valid (if not, the reference system was simulated)."""
-    valid = _validity(system)
+    valid = _validity(system, sim)
     arrays, rest = eqx.partition(system, eqx.is_array)
     reference = eqx.filter(sim.reference, eqx.is_array)
     arrays = jax.tree.map(lambda a, b: jnp.where(valid, a, b), arrays, reference)
@@ -216,15 +222,21 @@ def _simulate_records(system, data: _SystemData, sim: _Simulation):
     # kind of excitation (a `Sampled` force here, a `Constant` there).
     for k, n in enumerate(data.samples):
         dt, stride = data.dts[k], data.strides[k]
-        solution = simulate_system(
+        # The simulation itself, without `simulate_system`'s argument handling and
+        # run-time checks: the records were checked once, and `valid` stands an
+        # invalid trial point in for the reference, so no check could fire.
+        duration = n * stride * dt
+        _excitation_checks(data.excitations[k], dt, duration)  # at trace time
+        solution = _simulate_system(
             system,
             data.excitations[k],
             sim.controller,
-            n * stride * dt,
-            sampling=Sampling(dt=dt, delay=sim.delay),
-            integrator=FixedStep(substeps=sim.substeps),
-            initial_state=data.initial_states[k],
-            throw=False,
+            duration,
+            Sampling(dt=dt, delay=sim.delay),
+            FixedStep(substeps=sim.substeps),
+            data.initial_states[k],
+            False,
+            checks=False,
         )
         y = solution.outputs[sim.output][::stride][:n]
         outputs.append(jnp.pad(y, (0, length - n)))
@@ -385,10 +397,15 @@ def fit_system(
         substeps=substeps,
         delay=delay,
     )
+    _check_start(system, sim)
     if solver is None:
         solver = FastLevenbergMarquardt()
     residuals, scaled_residuals = _closed_residuals(static, data, sim)
-    scale = column_scale(residuals, free, static, None, None)
+    # The column scale from the solver's own first step, whose compiled Jacobian the
+    # fit then reuses (as `fit` does; `column_scale`).
+    scale = column_scale(
+        residuals, free, static, None, None, step=(solver, scaled_residuals)
+    )
     best_y, (outcome,) = iterate(
         solver,
         one_start(free, scale),
@@ -404,6 +421,22 @@ def fit_system(
     return _system_result(
         free_best, static, data, sim, residuals, outcome, identifiability_threshold
     )
+
+
+def _check_start(system, sim: _Simulation) -> None:
+    """The start stands in for every invalid trial point (`_validity`): it must pass
+    `simulate_system`'s checks itself."""
+    start = unwrap(system)
+    failed = [
+        check.message()
+        for check in system_checks(start, sim.controller.i_max, jnp.result_type(float))
+        if not bool(np.all(np.asarray(check.ok)))
+    ]
+    if failed:
+        raise ValueError(
+            f"fit_system: the start is not a valid {type(start).__name__}: "
+            + " ".join(failed)
+        )
 
 
 def _system_result(free, static, data, sim, residuals, outcome, threshold) -> FitResult:
