@@ -609,6 +609,50 @@ def _dahl_brake(experiments):
     ]  # fmt: skip
 
 
+def _family_data(name, experiments, seed=1):
+    """The brake's records (motion, currents, sampling) with the torque of the
+    family `name`'s template scaled to the brake's data, 1 % noise. The candidates'
+    templates are then built from these new data (other scales), so no fit starts at
+    the truth."""
+    truth = unwrap(MODEL_TEMPLATES[name](experiments))
+    rng = np.random.default_rng(seed)
+    return [
+        jaxmr.data.Experiment(
+            e.t, e.x, e.v, e.current,
+            torque + NOISE * np.std(torque) * rng.standard_normal(torque.shape),
+            name=e.name, rotary=True,
+        )
+        for e, torque in zip(experiments, predict_all(truth, experiments))
+    ]  # fmt: skip
+
+
+@pytest.mark.parametrize(
+    "family, rival",
+    [
+        # Measured margins (median held-out NRMSE, rival / family): Bingham 1.04
+        # (Dahl's saturating state mimics the tanh, parsimony-free at 4 records),
+        # LuGre 1.17 (Dahl has no Stribeck hump), Spencer 1.74 (Bouc–Wen has no
+        # low-velocity roll-off).
+        ("bingham", "dahl"),
+        ("lugre", "dahl"),
+        ("spencer", "bouc_wen"),
+    ],
+)
+def test_selection_finds_each_family_that_made_the_data(brake, family, rival):
+    """Data made by one family's model, selection between it and its closest
+    rival: the family that made the data is chosen (Dahl and Bouc–Wen in
+    `test_selection_finds_the_family_that_made_the_data`). Not covered:
+    shear-thinning Spencer. Its template-scaled model, even with the thinning made
+    5x stronger, is fitted about as well by Spencer's model on these records
+    (held-out NRMSE 0.0101 against 0.0104), and with 3 Hz records added Spencer's was
+    lower (0.0092 against 0.0093): these data cannot tell the two apart."""
+    _, _, experiments = brake
+    options = dict(max_steps=15, statistics_refinement=1, screen_steps=10)
+    data = _family_data(family, experiments)
+    selection = jaxmr.select_model([rival, family], data, **options)
+    assert selection.name == family, selection.parsimony
+
+
 def test_selection_finds_the_family_that_made_the_data(brake):
     """Small records, few steps: Dahl data (the brake's three 1-cycle records, a
     Dahl brake's torque, 1 % noise) → dahl over Bouc–Wen (no better on held-out
