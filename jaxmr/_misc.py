@@ -130,6 +130,19 @@ class Check(eqx.Module):
         return Check(self.ok, f"{prefix}: {self.rule}", self.value)
 
 
+def guarded(x, checks, prefix: str = "", suffix: str = ""):
+    """`x`, raising at run time the message (`prefix + Check.message() + suffix`) of
+    the first of `checks` that fails: one `equinox.branched_error_if` for them all.
+    One `error_if` per check cost ~30 ms of tracing each, 0.5 s for a quarter car's
+    17 checks in every program that simulates it."""
+    checks = list(checks)
+    if not checks:
+        return x
+    failed = jnp.stack([jnp.logical_not(jnp.all(check.ok)) for check in checks])
+    messages = [f"{prefix}{check.message()}{suffix}" for check in checks]
+    return eqx.branched_error_if(x, jnp.any(failed), jnp.argmax(failed), messages)
+
+
 def check_concrete(condition_ok, message: str, *values) -> None:
     """Raise `ValueError(message)` now if `values` are concrete and `condition_ok` fails.
 

@@ -18,7 +18,7 @@ from ._distribute import batch_mesh, gather, pad, padded_size, spread
 from ._fitted_range import FittedRange, check_fitted_range
 from ._hysteresis import AbstractHysteresis
 from ._integrate import AbstractIntegrator, Adaptive, FixedStep
-from ._misc import Check, as_float_array, is_concrete, warn_if_float32
+from ._misc import Check, as_float_array, guarded, is_concrete, warn_if_float32
 from ._signal import AbstractSignal, Constant, as_signal
 from ._solution import RESULTS, Solution
 
@@ -100,10 +100,8 @@ def _runtime_checks(damper: Damper, motion, current, ts, table_errors: bool = Tr
         dynamics = damper.dynamics
         name = type(dynamics).__name__
         checks += [check.named(name) for check in dynamics.constraints()]
-    for check in checks:
-        # The message quotes a value only where it is concrete (`Check.message`).
-        ts = eqx.error_if(ts, jnp.logical_not(check.ok), check.message())
-    return ts, in_tables
+    # The message quotes a value only where it is concrete (`Check.message`).
+    return guarded(ts, checks), in_tables
 
 
 def _check_tables_now(damper: Damper, bounds, device: str = "", current: str = ""):
