@@ -321,7 +321,9 @@ def fit_system(
     Which parameters are fitted: every array in `system` (mass, stiffness, the damper's
     parameters, ...) except those wrapped in `jaxmr.Fixed`; `jaxmr.Positive` and
     `jaxmr.Bounded` constrain. A step that leaves the region `simulate_system` accepts
-    (e.g. a negative mass) or makes the simulation diverge is rejected, not fatal.
+    (e.g. a negative mass, or a damper law invalid at any current the controller may
+    command) or makes the simulation diverge is rejected, not fatal; the start itself
+    must lie in that region (a `ValueError` names the rule it breaks).
     Redundant parameters (a dashpot in both the system and its damper; Bouc–Wen's
     $\alpha$ with $A$, $\beta$, $\gamma$) are reported in `unidentified`: fix one of
     each such set.
