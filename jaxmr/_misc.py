@@ -133,8 +133,8 @@ class Check(eqx.Module):
 def guarded(x, checks, prefix: str = "", suffix: str = ""):
     """`x`, raising at run time the message (`prefix + Check.message() + suffix`) of
     the first of `checks` that fails: one `equinox.branched_error_if` for them all.
-    One `error_if` per check cost ~30 ms of tracing each, 0.5 s for a quarter car's
-    17 checks in every program that simulates it."""
+    One `error_if` per check traced slower: a quarter car's simulation, 19 checks,
+    took 0.33 s to trace against 0.21 s with this."""
     checks = list(checks)
     if not checks:
         return x

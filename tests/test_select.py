@@ -591,15 +591,11 @@ def test_select_model_and_the_command_line_share_the_default_candidates(monkeypa
         assert seen[-1] == jaxmr.templates.default_candidates(experiments)
 
 
-def _dahl_brake(experiments):
-    """The brake's records (motion, currents, sampling) with the torque of a Dahl brake
-    instead, 1 % noise: k_x and k_w linear in the current (as the template's laws),
-    z saturating over about 2° (ρ = 30 1/rad) of the ±3.5° stroke. Simulated with the
-    fits' own steps (`predict_all`): these are the data, not what is tested."""
-    truth = jaxmr.Dahl(
-        k_x=jaxmr.LinearLaw(0.01, 0.07), k_w=jaxmr.LinearLaw(1.0, 0.3), rho=30.0
-    )
-    rng = np.random.default_rng(1)
+def _made_by(truth, experiments, seed=1):
+    """The records of `experiments` (motion, currents, sampling) with the torque of
+    `truth` instead, 1 % noise (seeded). Simulated with the fits' own steps
+    (`predict_all`)."""
+    rng = np.random.default_rng(seed)
     return [
         jaxmr.data.Experiment(
             e.t, e.x, e.v, e.current,
@@ -608,6 +604,17 @@ def _dahl_brake(experiments):
         )
         for e, torque in zip(experiments, predict_all(truth, experiments))
     ]  # fmt: skip
+
+
+def _dahl_brake(experiments):
+    """The brake's records (motion, currents, sampling) with the torque of a Dahl brake
+    instead, 1 % noise: k_x and k_w linear in the current (as the template's laws),
+    z saturating over about 2° (ρ = 30 1/rad) of the ±3.5° stroke. Simulated with the
+    fits' own steps (`predict_all`): these are the data, not what is tested."""
+    truth = jaxmr.Dahl(
+        k_x=jaxmr.LinearLaw(0.01, 0.07), k_w=jaxmr.LinearLaw(1.0, 0.3), rho=30.0
+    )
+    return _made_by(truth, experiments)
 
 
 def _strongly_thinning(model):
@@ -628,15 +635,7 @@ def _family_data(name, experiments, edit=None, seed=1):
     truth = unwrap(MODEL_TEMPLATES[name](experiments))
     if edit is not None:
         truth = edit(truth)
-    rng = np.random.default_rng(seed)
-    return [
-        jaxmr.data.Experiment(
-            e.t, e.x, e.v, e.current,
-            torque + NOISE * np.std(torque) * rng.standard_normal(torque.shape),
-            name=e.name, rotary=True,
-        )
-        for e, torque in zip(experiments, predict_all(truth, experiments))
-    ]  # fmt: skip
+    return _made_by(truth, experiments, seed)
 
 
 @pytest.mark.parametrize(
