@@ -322,6 +322,48 @@ def test_a_loss_never_finite_is_reported_as_such():
     assert all(o.loss == np.inf for o in outcomes)
 
 
+def _blown_up_beyond_2(bad):
+    """`_linear`, whose Jacobian is `bad` (nan, or an overflowing 1e100) where
+    a > 2, its residual finite everywhere: a fixed-step simulation past its
+    stability limit, whose sensitivities blow up before its state does."""
+
+    @jax.custom_jvp
+    def r(a):
+        return jnp.array([1.0, 2.0]) * (a - 3.0)
+
+    @r.defjvp
+    def r_jvp(primals, tangents):
+        (a,), (t,) = primals, tangents
+        slope = jnp.where(a > 2.0, bad, 1.0) * jnp.array([1.0, 2.0])
+        return r(a), slope * t
+
+    return lambda y, static, data, extra: r(y["a"])
+
+
+@pytest.mark.parametrize("bad", [np.nan, 1e100])
+def test_a_point_whose_linearisation_is_not_sound_is_rejected(bad):
+    """Accepted, a non-finite Jacobian made the next step nan (the fit "failed"),
+    and a blown-up one (JᵀJ ~1e200) froze every other direction under the least
+    damping (the fit "converged" there). Rejected, the fit goes on in a smaller
+    region and ends at the edge of the sound one (a ≤ 2), not failed."""
+    ys = {"a": jnp.ones((1,))}
+    args = (_blown_up_beyond_2(bad), None, None, None)
+    best, (outcome,) = iterate(
+        jaxmr.FastLevenbergMarquardt(),
+        ys,
+        args,
+        None,
+        60,
+        8,
+        1e-4,
+        lambda k, loss: None,
+    )
+    assert outcome.stop in (jaxmr.StopReason.TOLERANCE, jaxmr.StopReason.STALLED)
+    a = float(best["a"][0])
+    # Within 1 % of the edge: the rejections shrink the region 4x each time.
+    assert 1.98 <= a <= 2.0, (a, outcome)
+
+
 def test_the_stop_flag_stops_between_steps_and_keeps_the_best():
     runs = dahl_runs((5.0,), (3.0,))
     stop = threading.Event()

@@ -161,6 +161,24 @@ class FastLevenbergMarquardt(optx.AbstractLeastSquaresSolver):
             lambda x: (state.gram, state.gradient),
             state.y_eval,
         )
+        # A point whose residual is finite but whose linearisation is not, or has
+        # blown up (a column norm grown a millionfold from the start's scaled unit
+        # norm: JᵀJ's largest diagonal above 1/MIN_DAMPING, where the least damping
+        # freezes every direction of the start's scale), is rejected like one whose
+        # loss is not finite: the fit goes on from the last point with a sound
+        # linearisation, in a smaller region. Fixed-step RK4 past its stability
+        # limit gives such points: a Bouc–Wen screening fit on 10 UTFSM files
+        # stepped to n = 12-17, its simulation still finite and the sensitivities
+        # to n, β and γ ~1e88 (JᵀJ ~1e181); it stopped there, "failed" or
+        # "converged". The start (the first step) is exempt: its columns are
+        # unscaled where the column scale is measured.
+        linearised = (
+            jnp.all(jnp.isfinite(gram))
+            & jnp.all(jnp.isfinite(gradient))
+            & (state.first_step | (jnp.max(jnp.diagonal(gram)) <= 1 / MIN_DAMPING))
+        )
+        radius = jnp.where(accept & ~linearised, state.radius * 0.25, radius)
+        accept = accept & linearised
         new_y = jnp.where(accept, state.y_eval, flat)
         residual = jnp.where(accept, r_eval, state.residual)
         gram = jnp.where(accept, gram, state.gram)
