@@ -74,6 +74,12 @@ class FastLevenbergMarquardt(optx.AbstractLeastSquaresSolver):
     3x its residual and Jacobian (0.14 s against 0.045 s). The state then holds no
     n × p Jacobian either.
 
+    A trial point is rejected (the region shrinks 4x) where its loss is not finite,
+    and where its Jacobian is not finite or has blown up: JᵀJ's largest diagonal
+    above 1/`MIN_DAMPING`, on columns of unit norm at the start. There fixed-step
+    RK4 has passed its stability limit while the simulation is still finite, and
+    the next step would be nan or, under the least damping, frozen.
+
     A member of a batch (`jax.vmap` with `axis_name`, as `jaxmr.fit` runs its starts)
     computes its Jacobian when any member accepted.
 
