@@ -207,8 +207,15 @@ def _finish(damper, current, ts, x, v, ys, result, num_steps, in_tables) -> Solu
     )
     if ys.shape[1] > 0 and damper.state_bounds(ys[0], i[0]) is not None:
         # A fixed-step solve can diverge to large finite values; 1 % slack covers the
-        # integrator's own overshoot of a saturating state.
-        bounds = jax.vmap(damper.state_bounds)(ys, i)
+        # integrator's own overshoot of a saturating state. The bound is the widest
+        # so far, not the present one: a bound that shrinks with the input (LuGre's
+        # max(F_c, F_s)/σ0 under a falling current) leaves a state saturated at the
+        # higher input outside it while the state relaxes to the new one, which is no
+        # divergence (the NEES record's voltage fell from 2.26 to 0.15 V in one
+        # sample: LuGre's state was 19 % over the new bound and back within 4
+        # samples, and every LuGre fit there read as diverged). A state that does
+        # diverge leaves the widest bound too.
+        bounds = jax.lax.cummax(jax.vmap(damper.state_bounds)(ys, i), axis=0)
         inside = jnp.all(jnp.abs(ys) <= 1.01 * bounds + 1e-12)
         result = RESULTS.where(
             (result == RESULTS.successful) & ~inside,

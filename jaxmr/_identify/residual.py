@@ -26,8 +26,9 @@ DIVERGED = 1e6
 def _lane(damper, inputs, step, reset, experiments: int, guard: bool = False):
     """Force at the start of every step of one lane (RK4; state reset where `reset`,
     at most `experiments` times); with `guard`, also whether the state has left its
-    bounds (`state_bounds`, 1 % slack as `simulate`'s) or stopped being finite at or
-    before that step of its experiment."""
+    bounds (`state_bounds`, the largest since its experiment began, 1 % slack, as
+    `simulate`'s) or stopped being finite at or before that step of its
+    experiment."""
     # The states to reset to, computed before the scan for the lane's experiments
     # only and read in it: evaluated inside (under `where`), `initial_state` ran on
     # every step, and a `MagneticStage` traces its virgin magnetisation curve (64 RK4
@@ -38,15 +39,18 @@ def _lane(damper, inputs, step, reset, experiments: int, guard: bool = False):
     which = jnp.clip(jnp.cumsum(reset) - 1, 0, experiments - 1)
     first = virgin[which]
 
-    def outside(y, command):
+    def outside(y, command, widest):
+        """Whether `y` is out (not finite, or beyond the widest bound of its
+        experiment so far), and that widest bound."""
         bounds = damper.state_bounds(y, command)
         bad = ~jnp.all(jnp.isfinite(y))
         if bounds is None:
-            return bad
-        return bad | jnp.any(jnp.abs(y) > 1.01 * bounds + 1e-12)
+            return bad, widest
+        widest = jnp.maximum(widest, bounds)
+        return bad | jnp.any(jnp.abs(y) > 1.01 * widest + 1e-12), widest
 
     def body(carry, xs):
-        y, bad = carry
+        y, bad, widest = carry
         stage, h, start, y_start = xs
         # (x, v, i) at the step's start, midpoint and end.
         begin, middle, end = stage
@@ -55,18 +59,22 @@ def _lane(damper, inputs, step, reset, experiments: int, guard: bool = False):
         rates = lambda y, s: damper.rates(y, *s)
         y_next = rk4_stages(rates, y, h, begin, middle, end)
         if not guard:
-            return (y_next, bad), force
+            return (y_next, bad, widest), force
         # Once out, out for the rest of the experiment (a diverged state that comes
-        # back inside its bounds is no valid state either).
-        bad = jnp.where(start, False, bad) | outside(y, begin[2])
-        return (y_next, bad), (force, bad)
+        # back inside its bounds is no valid state either). The bound is the widest
+        # since the experiment began (`simulate`'s `_finish` says why).
+        widest = jnp.where(start, 0.0, widest)
+        out, widest = outside(y, begin[2], widest)
+        bad = jnp.where(start, False, bad) | out
+        return (y_next, bad, widest), (force, bad)
 
     (x0, v0, i0) = inputs[0, 0]
     y0 = damper.initial_state(x0, v0, i0)
     if y0.shape[0] == 0:  # a static model (Bingham): no state to integrate
         force = jax.vmap(lambda s: damper.force(y0, *s[0]))(inputs)
         return (force, jnp.zeros(force.shape, bool)) if guard else force
-    carry = (y0.astype(inputs.dtype), jnp.zeros((), bool))
+    y0 = y0.astype(inputs.dtype)
+    carry = (y0, jnp.zeros((), bool), jnp.zeros_like(y0))
     _, out = jax.lax.scan(body, carry, (inputs, step, reset, first))
     return out
 
