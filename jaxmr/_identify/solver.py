@@ -173,7 +173,7 @@ class FastLevenbergMarquardt(optx.AbstractLeastSquaresSolver):
         # freezes every direction of the start's scale), is rejected like one whose
         # loss is not finite: the fit goes on from the last point with a sound
         # linearisation, in a smaller region. Fixed-step RK4 past its stability
-        # limit gives such points: a Bouc–Wen screening fit on 10 UTFSM files
+        # limit gives such points: a Bouc–Wen screening fit on 18 UTFSM files
         # stepped to n = 12-17, its simulation still finite and the sensitivities
         # to n, β and γ ~1e88 (JᵀJ ~1e181); it stopped there, "failed" or
         # "converged". The start (the first step) is exempt: its columns are
