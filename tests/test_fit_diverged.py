@@ -53,3 +53,53 @@ def test_a_fit_that_holds_names_no_divergence():
     assert np.all(np.isfinite(result.rmse))
     assert result.diverged_at is not None and np.all(np.isnan(result.diverged_at))
     assert result.divergence is None and "diverged" not in result.outcome
+
+
+def test_a_fit_started_inside_the_bounds_stops_inside_them():
+    """Data a fit's own discretisation gives only past RK4's stability limit: a Dahl
+    damper with rho = 2.5e4 1/m simulated with one RK4 step per 2 ms sample (rho·|v|·h
+    = 3.1 at the 2 Hz, ±5 mm sine's peak speed, past the limit 2.785; its state
+    leaves |z| <= 1, as `simulate`'s result says), the same steps in the fit
+    (`FixedStep(1)`). From rho = 1e4 (inside) the loss falls all the way to the
+    data's rho. A fit that starts inside the bounds rejects every point whose state
+    leaves them (`guarded_residuals`): it ends below the limit on a sound
+    simulation, where its report agrees (finite scores, no divergence). Unguarded it
+    went to rho = 2.5e4, a loss of 2e-21 there, and its report scored the first
+    experiment inf (diverged at 4 ms)."""
+    t = np.arange(0.0, 0.6, 2e-3)
+    truth = jaxmr.Dahl(k_x=50.0, k_w=800.0, rho=2.5e4)
+    runs = []
+    for amplitude, name in ((5e-3, "past the limit"), (4e-3, "within it")):
+        solution = jaxmr.simulate(
+            truth,
+            jaxmr.Sine(amplitude, 2.0),
+            0.0,
+            t,
+            integrator=jaxmr.FixedStep(1),
+            throw=False,
+        )
+        runs.append(
+            jaxmr.data.Experiment(
+                t,
+                np.asarray(solution.displacement),
+                np.asarray(solution.velocity),
+                0.0,
+                np.asarray(solution.force),
+                name=name,
+            )
+        )
+        expected = (
+            jaxmr.RESULTS.state_out_of_bounds
+            if name == "past the limit"
+            else jaxmr.RESULTS.successful
+        )
+        assert solution.result == expected, (name, solution.result)
+    model = jaxmr.Dahl(k_x=50.0, k_w=800.0, rho=jaxmr.Positive(1e4))
+    result = jaxmr.fit(
+        model, runs, integrator=jaxmr.FixedStep(1), progress=False, max_steps=40
+    )
+    assert np.all(np.isfinite(result.rmse)), result.outcome
+    assert result.diverged_at is not None and np.all(np.isnan(result.diverged_at))
+    # It climbed from 1e4 to just below the limit (2.785 / (2 pi 2 Hz · 5 mm · 2 ms)
+    # = 2.2e4; a point's steps at lower speeds are further inside), not past it.
+    assert 2.0e4 < float(result.model.rho) < 2.4e4, result.model.rho

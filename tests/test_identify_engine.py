@@ -499,28 +499,31 @@ def test_a_state_relaxing_to_a_bound_that_shrank_with_the_input_is_no_divergence
 
 def test_a_fit_runs_the_model_s_python_once_per_data_shape(monkeypatch):
     # The residual is a jitted call inside the fit's programs (`traced_once`): the
-    # model's Python runs once for the fit's data and once for the statistics' finer
-    # steps (`statistics_refinement`), and the solver's `_init`, its step's trial
-    # point and Jacobian reuse the first trace. Each of them ran it anew (4 in all),
-    # about a sixth of a second fit's tracing on the UTFSM files (1.09 s, now 0.90 s).
-    # Without refinement the statistics' data are the fit's: one run in all (2 when
-    # the scaled residual did not go through the unscaled one's trace).
+    # model's Python runs once for the fit's (guarded) residual, once for the
+    # guarded simulation that checks the start and scores the report, and once for
+    # the statistics' finer steps (`statistics_refinement`); the solver's `_init`,
+    # its step's trial point and Jacobian reuse the first trace. Each of them ran it
+    # anew (4 runs for the residual alone), about a sixth of a second fit's tracing
+    # on the UTFSM files (1.09 s, now 0.90 s). Without refinement the statistics'
+    # data are the fit's and they reuse its trace: 2 runs in all (3 when the scaled
+    # residual did not go through the unscaled one's trace, or the statistics
+    # through the fit's residual).
     import jaxmr._identify.residual as residual_module
 
     calls = []
-    simulate = residual_module.simulate
+    simulated = residual_module._simulated
 
     def counting(*args, **kwargs):
         calls.append(1)
-        return simulate(*args, **kwargs)
+        return simulated(*args, **kwargs)
 
-    monkeypatch.setattr(residual_module, "simulate", counting)
+    monkeypatch.setattr(residual_module, "_simulated", counting)
     # Runs of a length no other test fits: a shape never traced in this process.
     runs = dahl_runs((3.0, 5.0), (1.0, 2.0), samples=87)
     result = jaxmr.fit(dahl_guess(), runs, max_steps=3, progress=False)
     assert result.num_steps >= 2  # the step ran more than once
-    assert len(calls) == 2, len(calls)
+    assert len(calls) == 3, len(calls)
     calls.clear()
     runs = dahl_runs((3.0, 5.0), (1.0, 2.0), samples=89)
     jaxmr.fit(dahl_guess(), runs, max_steps=3, progress=False, statistics_refinement=1)
-    assert len(calls) == 1, len(calls)
+    assert len(calls) == 2, len(calls)

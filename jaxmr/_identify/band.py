@@ -21,6 +21,7 @@ import numpy as np
 from .._channel import ChannelDelay
 from .._damper import Damper
 from .._hysteresis import AbstractHysteresis
+from .._integrate import FixedStep
 from .data import StepPolicy, as_step_policy, pack
 from .residual import residuals
 from .result import FitResult, jacobian_matrix
@@ -65,7 +66,7 @@ def prediction_band(
     experiments: Sequence,
     *,
     level: float = 0.95,
-    integrator: StepPolicy | None = None,
+    integrator: StepPolicy | FixedStep | None = None,
     smoothing=None,
 ) -> list[PredictionBand]:
     """The band of the force `result`'s model predicts for each experiment, from the
@@ -105,7 +106,7 @@ def prediction_band_from_covariance(
     experiments: Sequence,
     *,
     level: float = 0.95,
-    integrator: StepPolicy | None = None,
+    integrator: StepPolicy | FixedStep | None = None,
     smoothing=None,
 ) -> list[PredictionBand]:
     """`prediction_band` from a model and the covariance of its fitted parameters,

@@ -36,6 +36,7 @@ from typing import NamedTuple
 import jax
 import numpy as np
 
+from .._integrate import FixedStep
 from .._misc import warn_if_float32
 from .._signal import AbstractSignal, Sine
 from ..data._experiment import Experiment
@@ -497,7 +498,7 @@ def design_experiments(
     noise: float = 1.0,
     discard=None,
     smoothing=None,
-    integrator: StepPolicy | None = None,
+    integrator: StepPolicy | FixedStep | None = None,
     batch_size: int | None = None,
 ) -> Design:
     r"""Choose `k` of the `candidates` tests that identify `model`'s free parameters

@@ -13,8 +13,9 @@ import optimistix as optx
 from .._channel import ChannelDelay
 from .._current_law import ConstantLaw, is_law
 from .._damper import Damper, with_fitted_range
-from .._distribute import batch_mesh, gather, spread
+from .._distribute import batch_mesh, gather, spread, to_host
 from .._hysteresis import AbstractHysteresis
+from .._integrate import FixedStep
 from .._misc import warn_if_float32
 from .._parameter import free_filter
 from .data import (
@@ -27,6 +28,7 @@ from .data import (
     stack,
 )
 from .residual import (
+    guarded_residuals,
     residuals,
     simulate,
     simulate_jit,
@@ -40,6 +42,7 @@ from .solver import (
     divide,
     iterate,
     multiply,
+    placed_like_data,
     progress_printer,
     spread_starts,
     unscaled_member,
@@ -52,6 +55,48 @@ def _scaled_residuals(y, static, data, scale):
     # one trace of the model serves both; refined, the statistics' data have
     # another shape and are traced apart.
     return traced_once(residuals, multiply(y, scale), static, data, None)
+
+
+def _guarded_scaled_residuals(y, static, data, scale):
+    return traced_once(guarded_residuals, multiply(y, scale), static, data, None)
+
+
+def _fit_residuals(inside: bool):
+    """The scaled residual a fit runs on: guarded (`guarded_residuals`: a point whose
+    state leaves its bounds is rejected) when every start's state stays inside
+    them, so that the fit ends where its report finds a sound simulation; else
+    unguarded, as a start already outside would have no finite residual to descend
+    from (the NEES notebook's voltage-driven start overshoots its bound and fits
+    inside it). With the unscaled residual it scales."""
+    if inside:
+        return _guarded_scaled_residuals, guarded_residuals
+    return _scaled_residuals, residuals
+
+
+def _starts_inside(ys, static, data) -> bool:
+    """Whether the guarded simulation of every start (axis 0 of `ys`, unscaled free
+    values) is finite: no experiment's state leaves its bounds (the report's
+    compiled simulation, reused: the start placed as the report's parameters are)."""
+    n = jax.tree.leaves(ys)[0].shape[0]
+    return all(
+        bool(
+            np.all(
+                np.isfinite(
+                    simulate_jit(
+                        eqx.combine(
+                            placed_like_data(
+                                jax.tree.map(lambda a, k=k: a[k], ys), data
+                            ),
+                            static,
+                        ),
+                        data,
+                        True,
+                    )
+                )
+            )
+        )
+        for k in range(n)
+    )
 
 
 def _check_current_laws(model, experiments) -> None:
@@ -118,16 +163,17 @@ def _lanes_on_devices(data: FitData) -> FitData:
     return eqx.tree_at(where, data, spread(where(data), mesh))
 
 
-def _report(free, static, data, outcome, stats_data, threshold):
-    """The `FitResult` at the best parameters, its statistics from `stats_data` (the
-    data with shorter steps: the fixed step's derivative converges more slowly than
-    its force, d/dγ of the brake was 16 % off at 0.5 ms steps for n < 1)."""
+def _report(free, static, data, outcome, stats_data, threshold, residuals_fn):
+    """The `FitResult` at the best parameters, its statistics from `residuals_fn` on
+    `stats_data` (the data with shorter steps: the fixed step's derivative converges
+    more slowly than its force, d/dγ of the brake was 16 % off at 0.5 ms steps for
+    n < 1)."""
     # Guarded: an experiment whose state left its bounds scores NaN (rmse, nrmse inf),
     # a failure rather than the finite absurd forces of a diverged fixed step.
     simulated = np.asarray(simulate_jit(eqx.combine(free, static), data, True))
     # Each experiment's residual rows (refinement shortens steps, not samples).
     groups = kept_groups(data.kept_counts)
-    stats = statistics(residuals, free, static, stats_data, None, groups)
+    stats = statistics(residuals_fn, free, static, stats_data, None, groups)
     return assemble(
         free,
         static,
@@ -146,7 +192,7 @@ def fit(
     model: AbstractHysteresis | Damper | ChannelDelay,
     experiments: Sequence,
     *,
-    integrator: StepPolicy | None = None,
+    integrator: StepPolicy | FixedStep | None = None,
     starts: int | Sequence | None = None,
     spread: float = 3.0,
     key: jax.Array | None = None,
@@ -176,6 +222,12 @@ def fit(
     a `StepPolicy`) and no experiment is padded to another's length (they are packed
     end to end, `lanes` scans side by side); the residual and its Jacobian cost about
     p + 1 simulations for p free parameters.
+
+    Divergence: where every start keeps each experiment's state inside its bounds
+    (the check `simulate` and the report make, e.g. Bouc–Wen's $|z| \le z_0$), a
+    point whose state leaves them is rejected, so the fit ends on a simulation its
+    report accepts rather than past the fixed step's stability limit; a start
+    already outside fits unguarded.
 
     Which parameters are fitted: every array in `model`, including current laws
     (`LinearLaw` shares a law over all currents, `TableLaw` gives one value per
@@ -248,26 +300,31 @@ def fit(
     one_start = starts is None or (
         starts == 1 if isinstance(starts, int) else len(starts) == 1
     )
-    scale = column_scale(
-        residuals,
-        free,
-        static,
-        data,
-        None,
-        step=(solver, _scaled_residuals) if one_start else None,
-    )
-    if starts is None:
-        ys = jax.tree.map(lambda a: a[None], free)
-    elif isinstance(starts, int):
+    if isinstance(starts, int) and starts != 1:
+        # Random starts are spread in units of the column scale.
+        scale = column_scale(residuals, free, static, data, None)
         ys = spread_starts(model, starts, spread, key, scale)
+        fit_residuals, unscaled = _fit_residuals(_starts_inside(ys, static, data))
     else:
-        models = [with_fitted_range(m, None) for m in starts]
-        frees = [eqx.filter(m, free_filter(m)) for m in models]
-        ys = jax.tree.map(lambda *xs: jnp.stack(xs), *frees)
+        if starts is None or isinstance(starts, int):
+            ys = jax.tree.map(lambda a: a[None], free)
+        else:
+            models = [with_fitted_range(m, None) for m in starts]
+            frees = [eqx.filter(m, free_filter(m)) for m in models]
+            ys = jax.tree.map(lambda *xs: jnp.stack(xs), *frees)
+        fit_residuals, unscaled = _fit_residuals(_starts_inside(ys, static, data))
+        scale = column_scale(
+            residuals,
+            free,
+            static,
+            data,
+            None,
+            step=(solver, fit_residuals) if one_start else None,
+        )
     best_y, outcomes = iterate(
         solver,
         divide(ys, scale),
-        (_scaled_residuals, static, data, scale),
+        (fit_residuals, static, data, scale),
         None,
         max_steps,
         patience,
@@ -293,6 +350,11 @@ def fit(
         outcome,
         stats_data,
         identifiability_threshold,
+        # On the fit's own data, its own residual and trace: a guarded fit's best
+        # point is inside the bounds there (its start was, and it accepts no point
+        # outside), where both residuals are the same. Refined steps are judged
+        # anew, so they are not guarded.
+        residuals if refine else unscaled,
     )
 
 
@@ -310,7 +372,7 @@ def fit_each(
     | Sequence[AbstractHysteresis | Damper | ChannelDelay],
     experiments: Sequence,
     *,
-    integrator: StepPolicy | None = None,
+    integrator: StepPolicy | FixedStep | None = None,
     weighting: str = "nrmse",
     max_steps: int = 200,
     patience: int = 8,
@@ -397,10 +459,11 @@ def fit_each(
     if solver is None:
         solver = FastLevenbergMarquardt()
     scale = column_scale(residuals, free, static, problems[0], None)
+    inside = bool(np.all(to_host(_batched_inside(ys, static, batched))))
     best_y, outcomes = iterate(
         solver,
         divide(ys, scale),
-        (_scaled_residuals, static, batched, scale),
+        (_fit_residuals(inside)[0], static, batched, scale),
         0,
         max_steps,
         patience,
@@ -451,6 +514,17 @@ def fit_each(
             )
         )
     return results
+
+
+@eqx.filter_jit
+def _batched_inside(ys, static, data):
+    """`_starts_inside` for a batch of problems (axis 0 of `ys` and `data`), per
+    problem."""
+
+    def one(y, d):
+        return jnp.all(jnp.isfinite(simulate(eqx.combine(y, static), d, True)))
+
+    return jax.vmap(one)(ys, data)
 
 
 @eqx.filter_jit

@@ -2,7 +2,7 @@
 in one vectorised scan per lane, smoothed like the data, compared with the force.
 
 One simulation path serves `fit`, `fit_each`, `predict`, `compare_models` and
-`record_nrmse`: `simulate` below.
+`record_nrmse`: `_simulated` below (`simulate`, and the residuals, on top of it).
 """
 
 import functools
@@ -79,32 +79,40 @@ def _lane(damper, inputs, step, reset, experiments: int, guard: bool = False):
     return out
 
 
-def simulate(model, data: FitData, guard: bool = False) -> jax.Array:
-    """The model's force [N] (torque [N·m]) at every sample of the packed experiments,
-    smoothed like the data where `data` says so, read through the force channel's
-    delay for a `ChannelDelay` (constraint wrappers resolved). With `guard`, NaN from
-    the first sample at which an experiment's state has left its bounds or is not
-    finite: a diverged fixed-step solve, whose finite forces would be absurd."""
+def _simulated(model, data: FitData, guard: bool):
+    """The model's unsmoothed force at every sample of the packed experiments, with
+    `guard` also whether the experiment's state has left its bounds at or before
+    that sample (else None), and the force channel's delay (or None)."""
     device, delay = split_channel(unwrap(model))
     damper = as_damper(device)
     lane = functools.partial(_lane, experiments=len(data.offsets), guard=guard)
     lanes = jax.vmap(lane, in_axes=(None, 0, 0, 0))(
         damper, data.inputs, data.step, data.reset
     )
+    at_samples = lambda a: jnp.reshape(a, -1)[data.sample_index]
     if guard:
         lane_force, lane_bad = lanes
-        bad = jnp.reshape(lane_bad, -1)[data.sample_index]
-        # Zeros in place of the diverged forces, so that the smoothing's running
-        # integral does not carry them into later experiments; NaN put back below.
-        force = jnp.where(bad, 0.0, jnp.reshape(lane_force, -1)[data.sample_index])
-        force = _smoothed(force, data, delay)
-        # `bad` holds from the first bad sample on: a window is clean where its
-        # last sample is.
-        last = data.hi_index + (data.hi_fraction > 0).astype(data.hi_index.dtype)
-        return jnp.where(bad | (data.smooth & bad[last]), jnp.nan, force)
+        return at_samples(lane_force), at_samples(lane_bad), delay
     # Without `guard`, `_lane` gives the force alone.
-    force = jnp.reshape(lanes, -1)  # pyright: ignore[reportArgumentType]
-    return _smoothed(force[data.sample_index], data, delay)
+    return at_samples(lanes), None, delay
+
+
+def simulate(model, data: FitData, guard: bool = False) -> jax.Array:
+    """The model's force [N] (torque [N·m]) at every sample of the packed experiments,
+    smoothed like the data where `data` says so, read through the force channel's
+    delay for a `ChannelDelay` (constraint wrappers resolved). With `guard`, NaN from
+    the first sample at which an experiment's state has left its bounds or is not
+    finite: a diverged fixed-step solve, whose finite forces would be absurd."""
+    force, bad, delay = _simulated(model, data, guard)
+    if bad is None:
+        return _smoothed(force, data, delay)
+    # Zeros in place of the diverged forces, so that the smoothing's running
+    # integral does not carry them into later experiments; NaN put back below.
+    force = _smoothed(jnp.where(bad, 0.0, force), data, delay)
+    # `bad` holds from the first bad sample on: a window is clean where its last
+    # sample is.
+    last = data.hi_index + (data.hi_fraction > 0).astype(data.hi_index.dtype)
+    return jnp.where(bad | (data.smooth & bad[last]), jnp.nan, force)
 
 
 def _smoothed(force, data: FitData, delay) -> jax.Array:
@@ -132,6 +140,28 @@ def _smoothed(force, data: FitData, delay) -> jax.Array:
 def residuals(free, static, data: FitData, _=None) -> jax.Array:
     """Weighted residuals (simulated − measured) at the scored samples."""
     force = simulate(eqx.combine(free, static), data)
+    return _weighted(force, data)
+
+
+def guarded_residuals(free, static, data: FitData, _=None) -> jax.Array:
+    """`residuals`, or `DIVERGED` everywhere where any experiment's state has left its
+    bounds (as `simulate(..., guard=True)` and so a fit's report judge it).
+
+    A fit that starts inside the bounds runs on this residual, so that it never
+    accepts a point whose report would call the simulation diverged. Without it a fit
+    climbs to the fixed step's stability limit where that helps its loss: LuGre on
+    simulated sine tests of Spencer et al.'s (1997) damper raised σ0 to 1.2e7 N/m,
+    where one RK4 step of 25 µm travel (`StepPolicy`) puts σ0·|v|·h/g at 2.8, RK4's
+    limit; the fit's unguarded simulation stayed finite, its state 1 % past the
+    bound, and the report then scored that experiment as diverged (NRMSE inf) and
+    the fit as not converged. Spencer's templates did the same there."""
+    force, bad, delay = _simulated(eqx.combine(free, static), data, True)
+    assert bad is not None  # guarded
+    r = _weighted(_smoothed(force, data, delay), data)
+    return jnp.where(jnp.any(bad), DIVERGED, r)
+
+
+def _weighted(force, data: FitData) -> jax.Array:
     r = (force[data.kept] - data.force[data.kept]) * data.weight
     return jnp.where(jnp.isfinite(r), r, DIVERGED)
 

@@ -10,6 +10,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from .._damper import with_fitted_range
+from .._integrate import FixedStep
 from .data import StepPolicy, as_step_policy, pack, per_experiment, window
 from .residual import simulate_jit
 
@@ -18,7 +19,7 @@ def predict_all(
     model,
     experiments: Sequence,
     *,
-    integrator: StepPolicy | None = None,
+    integrator: StepPolicy | FixedStep | None = None,
     smoothing=None,
 ) -> list[np.ndarray]:
     """The force (torque) `model` predicts for each experiment, in one batched run.
@@ -61,7 +62,11 @@ def predict_all(
 
 
 def predict(
-    model, experiment, *, integrator: StepPolicy | None = None, smoothing=None
+    model,
+    experiment,
+    *,
+    integrator: StepPolicy | FixedStep | None = None,
+    smoothing=None,
 ) -> np.ndarray:
     """The force [N] (torque [N·m]) `model` predicts at `experiment`'s samples, from the
     virgin state, under its measured motion and input. See `predict_all`."""
@@ -119,7 +124,7 @@ def record_nrmse(
     until=None,
     smoothing=None,
     remove_mean: bool = False,
-    integrator: StepPolicy | None = None,
+    integrator: StepPolicy | FixedStep | None = None,
 ) -> np.ndarray:
     """NRMSE = RMSE/std(F) of a model on whole records (`predict_all`), scored on the
     samples with `t0 + discard <= t <= t0 + until` (the simulation always starts at
