@@ -200,18 +200,19 @@ def test_ctrl_c_writes_the_best_model_so_far(
 
     step, calls = solver._step, []
 
-    # The first call is the column scale's (`solver.column_scale`: one step at the
-    # start with unit scale), then one per Levenberg–Marquardt step.
+    # One call per Levenberg–Marquardt step, the first made where the column scale
+    # is measured (`solver.scale_and_first_step`: the step at the start with unit
+    # scale, carried into the scaled variables).
     def interrupted(*args):
         calls.append(None)
-        if len(calls) == 4:
+        if len(calls) == 3:
             signal.raise_signal(signal.SIGINT)
         return step(*args)
 
     monkeypatch.setattr(solver, "_step", interrupted)
     out = tmp_path / "p.json"
     status, _ = _run(["fit", *model, "--out", out, *files])
-    assert status == 130 and len(calls) == 4
+    assert status == 130 and len(calls) == 3
     assert "interrupted; the best model so far is in" in capsys.readouterr().err
     report = json.loads(out.read_text())["report"]
     assert report["interrupted"] and report["stop"] == "interrupted"
@@ -616,7 +617,7 @@ def test_second_ctrl_c_while_saving(
 
     def interrupted_step(*args):
         steps.append(None)
-        if len(steps) == 4:  # the column scale's step, then the fit's (see above)
+        if len(steps) == 3:  # the fit's third step (see above)
             signal.raise_signal(signal.SIGINT)
         return step(*args)
 

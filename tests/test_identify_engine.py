@@ -497,6 +497,19 @@ def test_a_state_relaxing_to_a_bound_that_shrank_with_the_input_is_no_divergence
     assert solution.result == jaxmr.RESULTS.successful, solution.result
 
 
+def _counted(monkeypatch, module, name: str) -> list:
+    """`module.name` replaced by a wrapper that calls it and appends to the list
+    returned (one entry per call)."""
+    calls, function = [], getattr(module, name)
+
+    def counting(*args, **kwargs):
+        calls.append(1)
+        return function(*args, **kwargs)
+
+    monkeypatch.setattr(module, name, counting)
+    return calls
+
+
 def test_a_fit_runs_the_model_s_python_once_per_data_shape(monkeypatch):
     # The residual is a jitted call inside the fit's programs (`traced_once`): the
     # model's Python runs once for the fit's (guarded) residual, once for the
@@ -510,14 +523,7 @@ def test_a_fit_runs_the_model_s_python_once_per_data_shape(monkeypatch):
     # through the fit's residual).
     import jaxmr._identify.residual as residual_module
 
-    calls = []
-    simulated = residual_module._simulated
-
-    def counting(*args, **kwargs):
-        calls.append(1)
-        return simulated(*args, **kwargs)
-
-    monkeypatch.setattr(residual_module, "_simulated", counting)
+    calls = _counted(monkeypatch, residual_module, "_simulated")
     # Runs of a length no other test fits: a shape never traced in this process.
     runs = dahl_runs((3.0, 5.0), (1.0, 2.0), samples=87)
     result = jaxmr.fit(dahl_guess(), runs, max_steps=3, progress=False)
@@ -527,3 +533,27 @@ def test_a_fit_runs_the_model_s_python_once_per_data_shape(monkeypatch):
     runs = dahl_runs((3.0, 5.0), (1.0, 2.0), samples=89)
     jaxmr.fit(dahl_guess(), runs, max_steps=3, progress=False, statistics_refinement=1)
     assert len(calls) == 2, len(calls)
+
+
+def test_one_start_evaluates_its_first_step_once(monkeypatch):
+    """The column scale comes from the solver's first step at the start with unit
+    scale; that step, carried into the scaled variables (JᵀJ → D JᵀJ D, Jᵀr → D Jᵀr,
+    the damped step solved anew), is the fit's first: `max_steps` steps make
+    `max_steps` calls of the compiled step, not one more (a residual and a Jacobian
+    at the start each fit had evaluated twice). The path is the one the start gets
+    stepped from scratch in the scaled variables (`starts=[model]`, whose first step
+    `iterate` makes itself): the same losses and parameters to rounding (1e-9
+    relative: D JᵀJ D against (JD)ᵀ(JD), and what follows from it)."""
+    import jaxmr._identify.solver as solver_module
+
+    calls = _counted(monkeypatch, solver_module, "_step")
+    runs = dahl_runs((3.0, 5.0), (1.0, 2.0))
+    carried = jaxmr.fit(dahl_guess(), runs, max_steps=6, ftol=0.0, **_QUICK)
+    assert carried.num_steps == 6 and len(calls) == 6, (carried.num_steps, len(calls))
+    calls.clear()
+    anew = jaxmr.fit(
+        dahl_guess(), runs, starts=[dahl_guess()], max_steps=6, ftol=0.0, **_QUICK
+    )
+    assert len(calls) == 7  # the column scale's step, then iterate's six
+    np.testing.assert_allclose(carried.history, anew.history, rtol=1e-9)
+    np.testing.assert_allclose(carried.values, anew.values, rtol=1e-9)

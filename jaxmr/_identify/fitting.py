@@ -44,6 +44,7 @@ from .solver import (
     multiply,
     placed_like_data,
     progress_printer,
+    scale_and_first_step,
     spread_starts,
     unscaled_member,
 )
@@ -296,10 +297,13 @@ def fit(
     if solver is None:
         solver = FastLevenbergMarquardt()
     # One start: the column scale from the solver's own first step, whose compiled
-    # Jacobian the fit then reuses (`column_scale`).
+    # Jacobian the fit then reuses, and from the model itself that step is the fit's
+    # first (`scale_and_first_step`).
     one_start = starts is None or (
         starts == 1 if isinstance(starts, int) else len(starts) == 1
     )
+    first = None
+    starts_are_model = starts is None or isinstance(starts, int)
     if isinstance(starts, int) and starts != 1:
         # Random starts are spread in units of the column scale.
         scale = column_scale(residuals, free, static, data, None)
@@ -313,14 +317,14 @@ def fit(
             frees = [eqx.filter(m, free_filter(m)) for m in models]
             ys = jax.tree.map(lambda *xs: jnp.stack(xs), *frees)
         fit_residuals, unscaled = _fit_residuals(_starts_inside(ys, static, data))
-        scale = column_scale(
-            residuals,
-            free,
-            static,
-            data,
-            None,
-            step=(solver, fit_residuals) if one_start else None,
-        )
+        if one_start:
+            scale, first = scale_and_first_step(
+                solver, residuals, fit_residuals, free, static, data
+            )
+            if not starts_are_model:
+                first = None  # made from the model, not from the start given
+        else:
+            scale = column_scale(residuals, free, static, data, None)
     best_y, outcomes = iterate(
         solver,
         divide(ys, scale),
@@ -331,6 +335,7 @@ def fit(
         ftol,
         progress_printer(progress),
         stop=stop,
+        first=first,
     )
     losses = [o.loss if np.isfinite(o.loss) else np.inf for o in outcomes]
     best = int(np.argmin(losses))

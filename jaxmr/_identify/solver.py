@@ -11,7 +11,7 @@ scaled once by their Jacobian columns (Moré's scaling, frozen at the start).
 import dataclasses
 import time
 from collections.abc import Callable
-from typing import Any
+from typing import Any, NamedTuple
 
 import equinox as eqx
 import jax
@@ -283,35 +283,119 @@ def _half_sum_squares(r):
 # Column scaling
 
 
-def column_scale(residuals_fn, free, static, data, extra, *, step=None):
+def column_scale(residuals_fn, free, static, data, extra):
     """Per free variable, 1/(norm of its Jacobian column) at the start.
 
     optimistix's Levenberg–Marquardt damps with λ·I, which suits unit-norm columns;
     a model's sensitivities span decades (log C0a against log α for the brake), and
-    unscaled it crept along the valley for ~3x more steps.
-
-    `step`: `(solver, scaled_residuals)` where `iterate` will then step one start
-    with that solver on `(scaled_residuals, static, data, scale)`: for a
-    `FastLevenbergMarquardt` the norms are read from JᵀJ after the solver's own
-    first step at the start with unit scale (`_first_step_norms`), so that the fit
-    compiles its Jacobian once, in the step that it then reuses, instead of a second
-    time here (the 14-parameter UTFSM fit: a third of its compilation). Otherwise,
-    and for other solvers, from the residual's own Jacobian.
+    unscaled it crept along the valley for ~3x more steps. One start of a
+    `FastLevenbergMarquardt` fit reads them from its own first step instead
+    (`scale_and_first_step`).
     """
-    if step is not None and isinstance(step[0], FastLevenbergMarquardt):
-        solver, scaled_residuals = step
-        norms = _first_step_norms(solver, scaled_residuals, free, static, data)
-    else:
-        _, jac = value_and_jacobian_jit(residuals_fn, free, static, data, extra)
-        # On the device (the Jacobian can be large), only the p norms brought back.
-        norms = jax.tree.map(to_host, _column_norms(jac))
+    _, jac = value_and_jacobian_jit(residuals_fn, free, static, data, extra)
+    # On the device (the Jacobian can be large), only the p norms brought back.
+    return _scale_from_norms(jax.tree.map(to_host, _column_norms(jac)), data)
+
+
+def _scale_from_norms(norms, data):
     # The rest in NumPy on the host (p numbers): as eager `jnp` operations each
     # compiled once per shape, a few hundred ms of a first fit. Placed as
-    # `_first_step_norms` placed its unit scale, so that `iterate`'s steps, whose
+    # `scale_and_first_step` placed its unit scale, so that `iterate`'s steps, whose
     # parameters are divided by this scale, reuse that step's program.
     floor = _norm_floor(norms)
     return placed_like_data(
         jax.tree.map(lambda n: to_device(1.0 / np.maximum(n, floor)), norms), data
+    )
+
+
+class FirstStep(NamedTuple):
+    """`iterate`'s first step, made before it: the solver state's static part and
+    the step's outputs (`_step`'s: points, state arrays, losses, points they belong
+    to, flags)."""
+
+    static_state: Any
+    outputs: tuple
+
+
+def scale_and_first_step(solver, residuals_fn, scaled_residuals, free, static, data):
+    """The column scale (`column_scale`) of one start `free`, and, for a
+    `FastLevenbergMarquardt`, `iterate`'s first step from it in the scaled
+    variables (a `FirstStep`; None for other solvers), for `iterate` stepping that
+    start with `solver` on `(scaled_residuals, static, data, scale)`.
+
+    The solver's own first step at the start with unit scale gives JᵀJ and Jᵀr there:
+    the column norms are read from JᵀJ's diagonal, and the same step in the scaled
+    variables y/s is that one with JᵀJ → D JᵀJ D, Jᵀr → D Jᵀr (D = diag(s)) and its
+    damped step solved anew. So the fit compiles its Jacobian once, in the step it
+    then reuses (the 14-parameter UTFSM fit: a third of its compilation, when the
+    norms came from a Jacobian program of their own), and evaluates it at the start
+    once (its first step had evaluated it again: on the Bouc–Wen benchmark 0.15 s
+    of 3.2 s).
+    """
+    if not isinstance(solver, FastLevenbergMarquardt):
+        return column_scale(residuals_fn, free, static, data, None), None
+    unit = placed_like_data(
+        jax.tree.map(lambda a: to_device(np.ones(np.shape(a), a.dtype)), free), data
+    )
+    ys = one_start(free, unit)
+    args = (scaled_residuals, static, data, unit)
+    solver = _batch_solver(solver, ys, None, None)
+    dynamic, static_state = eqx.partition(
+        _init(solver, ys, args, None, None, None), eqx.is_array
+    )
+    outputs = _step(solver, ys, dynamic, static_state, args, None, None, None)
+    # The first step accepts the start: its JᵀJ is the start's, columns unscaled.
+    # Unravelled in NumPy, like `free`'s leaves (their order and shapes).
+    norms = np.sqrt(np.diagonal(to_host(outputs[1].gram)[0]))
+    leaves, treedef = jax.tree.flatten(free)
+    sizes = np.cumsum([np.size(a) for a in leaves])[:-1]
+    parts = np.split(norms, sizes)
+    norms = jax.tree.unflatten(
+        treedef, [p.reshape(np.shape(a)) for p, a in zip(parts, leaves, strict=True)]
+    )
+    scale = _scale_from_norms(norms, data)
+    return scale, FirstStep(
+        static_state, _rescaled_first_step(solver, outputs, static_state, scale)
+    )
+
+
+@eqx.filter_jit
+def _rescaled_first_step(solver, outputs, static_state, scale):
+    """A `FastLevenbergMarquardt`'s first step from one start (a batch of one), made
+    with unit scale, as made in the variables divided by `scale`: the same accepted
+    point, loss and radius; JᵀJ and Jᵀr in the new columns; the next trial point
+    from the damped step solved there; the solver's verdict on that state."""
+    ys, dynamic, loss, at, _, _ = outputs
+    member = lambda tree: jax.tree.map(lambda a: a[0], tree)
+    state = eqx.combine(member(dynamic), static_state)
+    s, _ = ravel_pytree(scale)
+    gram = state.gram * s[:, None] * s[None, :]
+    gradient = state.gradient * s
+    y, _ = ravel_pytree(member(ys))
+    step, available = _damped_step(gram, gradient, 1.0 / state.radius)
+    result = optx.RESULTS.where(
+        jnp.all(jnp.isfinite(step)), optx.RESULTS.successful, optx.RESULTS.nonfinite
+    )
+    loss_aux, at_aux = state.aux
+    state = dataclasses.replace(
+        state,
+        y_eval=y / s - step,
+        gram=gram,
+        gradient=gradient,
+        available=available,
+        aux=(loss_aux, divide(at_aux, scale)),
+        result=result,
+    )
+    done, result = solver.terminate(_lm_fn, None, None, _OPTIONS, state, frozenset())
+    failed = result != optx.RESULTS.successful
+    batch = lambda tree: jax.tree.map(lambda a: a[None], tree)
+    return (
+        divide(ys, scale),
+        batch(eqx.filter(state, eqx.is_array)),
+        loss,
+        divide(at, scale),
+        batch(done),
+        batch(failed),
     )
 
 
@@ -336,31 +420,6 @@ def placed_like_data(tree, data):
     sharding = getattr(getattr(data, "step", None), "sharding", None)
     mesh = sharding.mesh if isinstance(sharding, NamedSharding) else None
     return replicate(tree, mesh) if isinstance(mesh, Mesh) else tree
-
-
-def _first_step_norms(solver, scaled_residuals, free, static, data):
-    """The Jacobian's column norms at `free` from one step of `solver` from there with
-    unit scale: the arguments of `iterate`'s first step for one start, shapes and
-    types included, so that the compiled `_init` and `_step` are those it reuses."""
-    unit = placed_like_data(
-        jax.tree.map(lambda a: to_device(np.ones(np.shape(a), a.dtype)), free), data
-    )
-    ys = one_start(free, unit)
-    args = (scaled_residuals, static, data, unit)
-    solver = _batch_solver(solver, ys, None, None)
-    dynamic, static_state = eqx.partition(
-        _init(solver, ys, args, None, None, None), eqx.is_array
-    )
-    _, dynamic, *_ = _step(solver, ys, dynamic, static_state, args, None, None, None)
-    # The first step accepts the start: its JᵀJ is the start's, columns unscaled.
-    # Unravelled in NumPy, like `free`'s leaves (their order and shapes).
-    norms = np.sqrt(np.diagonal(to_host(dynamic.gram)[0]))
-    leaves, treedef = jax.tree.flatten(free)
-    sizes = np.cumsum([np.size(a) for a in leaves])[:-1]
-    parts = np.split(norms, sizes)
-    return jax.tree.unflatten(
-        treedef, [p.reshape(np.shape(a)) for p, a in zip(parts, leaves, strict=True)]
-    )
 
 
 def unscaled_member(ys, scale, k: int):
@@ -633,6 +692,7 @@ def iterate(
     chunk=None,
     mesh=None,
     stop=None,
+    first=None,
 ):
     """Levenberg–Marquardt on a batch of problems, stepped from Python.
 
@@ -645,15 +705,19 @@ def iterate(
     checked after every step: once set, the loop stops with the best parameters so
     far (`StopReason.INTERRUPTED`; at least one step, the starts' evaluation, is
     made). A `KeyboardInterrupt` does the same; any other exception propagates (a
-    programming error is not a fit result).
+    programming error is not a fit result). `first`: its first step, made before
+    (`scale_and_first_step`'s `FirstStep` from the start `ys`), or None.
 
     Returns the best ys and one `Outcome` per member (its best loss, the history of
     the batch's best loss, the steps taken, its `StopReason`).
     """
     solver = _batch_solver(solver, ys, data_axis, chunk)
-    dynamic, static_state = eqx.partition(
-        _init(solver, ys, args, data_axis, chunk, mesh), eqx.is_array
-    )
+    if first is None:
+        dynamic, static_state = eqx.partition(
+            _init(solver, ys, args, data_axis, chunk, mesh), eqx.is_array
+        )
+    else:
+        dynamic, static_state = None, first.static_state
     n = jax.tree.leaves(ys)[0].shape[0]
     best_loss = np.full(n, np.inf)
     best_y = ys
@@ -667,9 +731,12 @@ def iterate(
     interrupted = False
     try:
         for k in range(1, max_steps + 1):
-            ys, dynamic, loss, at, done, bad = _step(
-                solver, ys, dynamic, static_state, args, data_axis, chunk, mesh
-            )
+            if k == 1 and first is not None:
+                ys, dynamic, loss, at, done, bad = first.outputs
+            else:
+                ys, dynamic, loss, at, done, bad = _step(
+                    solver, ys, dynamic, static_state, args, data_axis, chunk, mesh
+                )
             # Every process reads the whole batch (one collective when it is spread
             # over processes), so all take the same decisions below.
             loss, done, bad = (to_host(a) for a in (loss, done, bad))

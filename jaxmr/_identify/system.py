@@ -37,11 +37,11 @@ from .fitting import warn_if_float32
 from .result import FitResult, assemble, statistics
 from .solver import (
     FastLevenbergMarquardt,
-    column_scale,
     iterate,
     multiply,
     one_start,
     progress_printer,
+    scale_and_first_step,
     unscaled_member,
 )
 
@@ -404,13 +404,14 @@ def fit_system(
         solver = FastLevenbergMarquardt()
     residuals, scaled_residuals = _closed_residuals(static, data, sim)
     # The column scale from the solver's own first step, whose compiled Jacobian the
-    # fit then reuses (as `fit` does; `column_scale`). The residuals close over
+    # fit then reuses, and which is the fit's first step (as in `fit`;
+    # `scale_and_first_step`). The residuals close over
     # `static`: passed as None here as `iterate` is passed it, so that the first
     # step's program is the one the fit reuses (given `static`, whose fixed
     # parameters are arrays, the step compiled twice: 1.4 s more on the Bouc–Wen
     # benchmark).
-    scale = column_scale(
-        residuals, free, None, None, None, step=(solver, scaled_residuals)
+    scale, first = scale_and_first_step(
+        solver, residuals, scaled_residuals, free, None, None
     )
     best_y, (outcome,) = iterate(
         solver,
@@ -422,6 +423,7 @@ def fit_system(
         ftol,
         progress_printer(progress),
         stop=stop,
+        first=first,
     )
     free_best = unscaled_member(best_y, scale, 0)
     return _system_result(
