@@ -10,9 +10,11 @@ compiled again. The directory is made for the session (inherited by the workers 
 kernels through the environment) and removed at its end, so nothing carries over
 between runs; a `JAX_COMPILATION_CACHE_DIR` set by the user is used as it is."""
 
+import gc
 import os
 import shutil
 import tempfile
+from pathlib import Path
 
 import pytest
 
@@ -53,6 +55,32 @@ jax.config.update(
     "jax_persistent_cache_min_compile_time_secs",
     float(os.environ.get("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "1.0")),
 )
+
+
+# Each compiled XLA CPU program holds a few memory mappings of its own (its code and
+# data), and a worker that runs half the suite holding every program it compiled
+# reached 63 000 of them, against Linux's default limit of 65 530
+# (`vm.max_map_count`). Past the limit LLVM's next mapping fails and the worker dies
+# in compilation: a segmentation fault in test_tune.py in CI (2026-11-27), after
+# which xdist waited for it forever. So a worker over half the limit drops JAX's
+# in-memory caches at the end of a module; a program it needs again is traced anew
+# and read back from the session's persistent cache.
+_MAPS = Path("/proc/self/maps")
+_MAP_LIMIT = Path("/proc/sys/vm/max_map_count")
+
+
+def _mappings() -> int:
+    with _MAPS.open() as maps:
+        return sum(1 for _ in maps)
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _within_the_mapping_limit():
+    yield
+    if _MAPS.exists() and _MAP_LIMIT.exists():
+        if 2 * _mappings() > int(_MAP_LIMIT.read_text()):
+            jax.clear_caches()
+            gc.collect()
 
 
 def pytest_unconfigure(config):
