@@ -205,13 +205,7 @@ class FastLevenbergMarquardt(optx.AbstractLeastSquaresSolver):
         # chunks) lineax refused the vector, whose structure carries the mesh's
         # sharding and the operator's not. The eigendecomposition takes one member
         # at a time (see `_one_matrix_at_a_time`).
-        step, available = _damped_step(gram, gradient, 1.0 / radius)
-        result = optx.RESULTS.where(
-            jnp.all(jnp.isfinite(step)),
-            optx.RESULTS.successful,
-            optx.RESULTS.nonfinite,
-        )
-        y_eval = new_y - step
+        y_eval, available, result = _next_trial(new_y, gram, gradient, radius)
         state = _LMState(
             first_step=jnp.array(False),
             y_eval=y_eval,
@@ -249,6 +243,17 @@ def _one_matrix_at_a_time(fn):
     same LAPACK routine as in the batched call: the results are the same bits.
     """
     return jax.custom_batching.sequential_vmap(fn)
+
+
+def _next_trial(y, gram, gradient, radius):
+    """The trial point after `y` (flat): `y` minus the damped Gauss–Newton step
+    (`_damped_step`, λ = 1/`radius`); the loss reduction the model promises there;
+    and whether the step is finite (optimistix's `RESULTS`)."""
+    step, available = _damped_step(gram, gradient, 1.0 / radius)
+    result = optx.RESULTS.where(
+        jnp.all(jnp.isfinite(step)), optx.RESULTS.successful, optx.RESULTS.nonfinite
+    )
+    return y - step, available, result
 
 
 # The least damping λ, relative to the largest eigenvalue of JᵀJ: the eigenvalues are
@@ -372,14 +377,11 @@ def _rescaled_first_step(solver, outputs, static_state, scale):
     gram = state.gram * s[:, None] * s[None, :]
     gradient = state.gradient * s
     y, _ = ravel_pytree(member(ys))
-    step, available = _damped_step(gram, gradient, 1.0 / state.radius)
-    result = optx.RESULTS.where(
-        jnp.all(jnp.isfinite(step)), optx.RESULTS.successful, optx.RESULTS.nonfinite
-    )
+    y_eval, available, result = _next_trial(y / s, gram, gradient, state.radius)
     loss_aux, at_aux = state.aux
     state = dataclasses.replace(
         state,
-        y_eval=y / s - step,
+        y_eval=y_eval,
         gram=gram,
         gradient=gradient,
         available=available,
