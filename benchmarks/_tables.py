@@ -248,6 +248,38 @@ TABLES = (
             Row("boucwen_residual_speedup", "Bouc–Wen oscillator residual"),
             Row("boucwen_jacobian_speedup", "Bouc–Wen oscillator Jacobian"),
             Row("sweep_speedup", "`sweep`, 256 runs"),
+            Row(
+                "utfsm_residual_compile_speedup_older_emitters",
+                "older fusion emitters: UTFSM residual, compile speedup",
+            ),
+            Row(
+                "utfsm_jacobian_compile_speedup_older_emitters",
+                "older emitters: UTFSM Jacobian, compile speedup",
+            ),
+            Row(
+                "boucwen_residual_compile_speedup_older_emitters",
+                "older emitters: oscillator residual, compile speedup",
+            ),
+            Row(
+                "boucwen_jacobian_compile_speedup_older_emitters",
+                "older emitters: oscillator Jacobian, compile speedup",
+            ),
+            Row(
+                "sweep_compile_speedup_older_emitters",
+                "older emitters: `sweep`, compile speedup",
+            ),
+            Row(
+                "utfsm_jacobian_run_ratio_older_emitters",
+                "older emitters: UTFSM Jacobian, run time ratio (1: same)",
+            ),
+            Row(
+                "boucwen_jacobian_run_ratio_older_emitters",
+                "older emitters: oscillator Jacobian, run time ratio",
+            ),
+            Row(
+                "sweep_run_ratio_older_emitters",
+                "older emitters: `sweep`, run time ratio",
+            ),
         ),
     ),
     Table(

@@ -1,4 +1,4 @@
-"""`jaxmr.devices.configure_cpu`'s loop setting against XLA's default, same machine, same run.
+"""`jaxmr.devices.configure_cpu`'s loop and emitter settings against XLA's defaults, same machine, same run.
 
     python benchmarks/cpu_flags.py --json benchmarks/results/cpu_flags.json
 
@@ -6,8 +6,18 @@ XLA reads its flags once per process, so each setting runs in its own fresh proc
 (one XLA CPU device each, nothing else changed):
 
 - `default`: XLA's own threshold (a while loop becomes one kernel when its body
-  touches at most 1024 bytes);
-- `configured`: the threshold `jaxmr.devices.configure_cpu` sets (100 kB).
+  touches at most 1024 bytes) and XLA's own (newer, MLIR) CPU fusion emitters;
+- `configured`: what `jaxmr.devices.configure_cpu` sets: the threshold 100 kB and,
+  on the jaxlib releases it was measured on, XLA's older fusion emitters
+  (`--xla_cpu_use_fusion_emitters=false`);
+- `newer_emitters`: `configured` with the newer emitters kept (the user's own
+  `--xla_cpu_use_fusion_emitters=true`, which `configure_cpu` keeps).
+
+Figures: `*_speedup` (run time, `default` over `configured`: the loop setting);
+`*_compile_speedup_older_emitters` (compile time, `newer_emitters` over
+`configured`) and `*_run_ratio_older_emitters` (run time, the same ratio: 1 means
+no change); `*_same_bits_older_emitters`: whether the two emitters' outputs are
+equal to the bit.
 
 Each times, compilation and run separately (run: median of 3 after the compiling
 call), the residual and the residual with its forward-mode Jacobian of:
@@ -21,6 +31,7 @@ call), the residual and the residual with its forward-mode Jacobian of:
 """
 
 import argparse
+import hashlib
 import json
 import os
 import statistics
@@ -34,22 +45,26 @@ from _report import write_figures
 
 ROOT = Path(__file__).resolve().parents[1]
 SHARED = ROOT.parent / "shared" / "data"
-SETTINGS = ("default", "configured")
+SETTINGS = ("default", "configured", "newer_emitters")
 
 
 def _timed(function, repeats=3):
     import jax
+    import numpy as np
 
     start = time.perf_counter()
-    jax.block_until_ready(function())
+    value = jax.block_until_ready(function())
     first = time.perf_counter() - start
+    # A fingerprint of the output's bits, to compare settings without storing it.
+    leaves = [np.asarray(a) for a in jax.tree.leaves(value)]
+    digest = hashlib.sha256(b"".join(a.tobytes() for a in leaves)).hexdigest()
     times = []
     for _ in range(repeats):
         start = time.perf_counter()
         jax.block_until_ready(function())
         times.append(time.perf_counter() - start)
     run = statistics.median(times)
-    return {"compile_s": first - run, "run_s": run}
+    return {"compile_s": first - run, "run_s": run, "sha256": digest}
 
 
 def _pair(residual, jacobian) -> dict:
@@ -128,7 +143,9 @@ def sweep():
 def worker(setting: str, out: Path) -> None:
     import jaxmr
 
-    if setting == "configured":
+    if setting == "newer_emitters":
+        os.environ["XLA_FLAGS"] = "--xla_cpu_use_fusion_emitters=true"
+    if setting in ("configured", "newer_emitters"):
         jaxmr.devices.configure_cpu(devices=1)
     import jax
 
@@ -171,6 +188,20 @@ def main():
         figures["default"]["sweep"]["sweep"]["run_s"]
         / figures["configured"]["sweep"]["sweep"]["run_s"]
     )
+    older, newer = figures["configured"], figures["newer_emitters"]
+    for name, parts in (
+        ("utfsm", ("residual", "jacobian")),
+        ("boucwen", ("residual", "jacobian")),
+        ("sweep", ("sweep",)),
+    ):
+        for part in parts:
+            key = name if part == "sweep" else f"{name}_{part}"
+            a, b = older[name][part], newer[name][part]
+            figures[f"{key}_compile_speedup_older_emitters"] = (
+                b["compile_s"] / a["compile_s"]
+            )
+            figures[f"{key}_run_ratio_older_emitters"] = b["run_s"] / a["run_s"]
+            figures[f"{key}_same_bits_older_emitters"] = a["sha256"] == b["sha256"]
     write_figures(figures, args.json)
 
 

@@ -19,8 +19,16 @@ on import:
 - **Every core a device** (`xla_force_host_platform_device_count`): XLA runs one
   device's loop on one core, and `fit` splits its lanes, `sweep` its batch, over the
   devices.
+- **XLA's older CPU fusion emitters** (`xla_cpu_use_fusion_emitters=false`): they
+  compile jaxmr's programs 20-40 % faster than the newer (MLIR) ones, which run them
+  no faster and give the same bits (the 30-file UTFSM residual and Jacobian compiled
+  in 0.45 and 1.3 s instead of 0.65 and 1.7 s, and matched to the bit; a cold
+  Bouc–Wen benchmark fit reached its target 0.5 s sooner: `benchmarks/cpu_flags.py`).
+  The flag is XLA's, and XLA aborts the process on a flag it does not know, so it is
+  set only under the jaxlib releases it was measured on (`_FUSION_EMITTERS_TESTED`).
 """
 
+import importlib.metadata
 import os
 import re
 
@@ -29,6 +37,10 @@ SMALL_LOOP_BYTES = 100_000
 _SMALL_LOOP_OPTION = "xla_cpu_small_while_loop_byte_threshold"
 _DEVICE_COUNT = "xla_force_host_platform_device_count"
 _EXTRA_OPTIONS = "xla_backend_extra_options"
+_FUSION_EMITTERS = "xla_cpu_use_fusion_emitters"
+# The jaxlib releases (major, minor) whose XLA has `_FUSION_EMITTERS` and on which
+# turning it off was measured (benchmarks/cpu_flags.py).
+_FUSION_EMITTERS_TESTED = ((0, 10),)
 
 
 def usable_cores() -> int:
@@ -44,11 +56,13 @@ def usable_cores() -> int:
 def configure_cpu(devices: int | None = None) -> str:
     """Set the XLA flags under which jaxmr runs fastest on a CPU; call it first.
 
-    Two settings (details in the module docstring): a simulation loop is compiled
-    into one kernel (its forward-mode Jacobian ran 2-5x faster), and `devices` CPU
+    Three settings (details in the module docstring): a simulation loop is compiled
+    into one kernel (its forward-mode Jacobian ran 2-5x faster); `devices` CPU
     cores become XLA devices, over which `fit` splits its lanes and `sweep`,
-    `fit_each` and `evaluate` their batches. A flag the user has set in `XLA_FLAGS`
-    is kept as it is. GPUs are unaffected.
+    `fit_each` and `evaluate` their batches; and XLA's older CPU fusion emitters
+    compile the programs (20-40 % faster, the same results; only under the jaxlib
+    releases this was measured on). A flag the user has set in `XLA_FLAGS` is kept
+    as it is. GPUs are unaffected.
 
     XLA reads its flags when JAX starts its CPU backend: call this before any JAX
     computation (`import jaxmr` does not start it), e.g. on the first line of a
@@ -73,6 +87,8 @@ def configure_cpu(devices: int | None = None) -> str:
     added = []
     if _EXTRA_OPTIONS not in flags:
         added.append(f"--{_EXTRA_OPTIONS}={_SMALL_LOOP_OPTION}={SMALL_LOOP_BYTES}")
+    if _FUSION_EMITTERS not in flags and _jaxlib_release() in _FUSION_EMITTERS_TESTED:
+        added.append(f"--{_FUSION_EMITTERS}=false")
     count = _flag_value(flags, _DEVICE_COUNT)
     if count is None and devices > 1:
         added.append(f"--{_DEVICE_COUNT}={devices}")
@@ -100,6 +116,16 @@ def configure_cpu(devices: int | None = None) -> str:
                 "computation."
             )
     return flags
+
+
+def _jaxlib_release() -> tuple[int, int] | None:
+    """The installed jaxlib's (major, minor) release, or None if it cannot be read
+    (read from its metadata: importing jaxlib is not needed)."""
+    try:
+        major, minor = importlib.metadata.version("jaxlib").split(".")[:2]
+        return int(major), int(minor)
+    except (importlib.metadata.PackageNotFoundError, ValueError):
+        return None
 
 
 def _flag_value(flags: str, name: str) -> int | None:

@@ -43,6 +43,8 @@ def test_devices_are_made_and_a_users_own_count_is_kept():
     count, flags = _run(code, None).split(" ", 1)
     assert count == "2"
     assert "xla_cpu_small_while_loop_byte_threshold=100000" in flags
+    # XLA started with it (it aborts on a flag it does not know) on this jaxlib.
+    assert "--xla_cpu_use_fusion_emitters=false" in flags
     count, flags = _run(code, "--xla_force_host_platform_device_count=3").split(" ", 1)
     assert count == "3"  # the user's count, not the call's
     assert "xla_cpu_small_while_loop_byte_threshold" in flags
@@ -77,6 +79,24 @@ def test_the_default_count_follows_the_cores_the_process_may_use(monkeypatch):
     monkeypatch.setenv("XLA_FLAGS", "")  # (restored after the test)
     flags = jaxmr.devices.configure_cpu()
     assert "xla_force_host_platform_device_count" not in flags
+
+
+def test_the_fusion_emitter_flag_is_set_only_where_it_was_measured(monkeypatch):
+    # XLA aborts the process on a flag it does not know: a jaxlib release it was not
+    # measured on does not get it, and a user's own setting is kept.
+    from jaxmr import _cpu
+
+    monkeypatch.setenv("XLA_FLAGS", "")  # (restored after the test)
+    monkeypatch.setattr(_cpu, "_jaxlib_release", lambda: (0, 10))
+    assert "--xla_cpu_use_fusion_emitters=false" in _cpu.configure_cpu(devices=1)
+    for release in [(0, 11), (1, 0), None]:
+        monkeypatch.setenv("XLA_FLAGS", "")
+        monkeypatch.setattr(_cpu, "_jaxlib_release", lambda r=release: r)
+        assert "fusion_emitters" not in _cpu.configure_cpu(devices=1)
+    monkeypatch.setenv("XLA_FLAGS", "--xla_cpu_use_fusion_emitters=true")
+    monkeypatch.setattr(_cpu, "_jaxlib_release", lambda: (0, 10))
+    flags = _cpu.configure_cpu(devices=1)
+    assert "--xla_cpu_use_fusion_emitters=true" in flags and "=false" not in flags
 
 
 def test_bad_device_count():
