@@ -557,3 +557,38 @@ def test_one_start_evaluates_its_first_step_once(monkeypatch):
     assert len(calls) == 7  # the column scale's step, then iterate's six
     np.testing.assert_allclose(carried.history, anew.history, rtol=1e-9)
     np.testing.assert_allclose(carried.values, anew.values, rtol=1e-9)
+
+
+def test_a_step_evaluates_its_trial_point_once():
+    """`FastLevenbergMarquardt` takes a trial point's residual as the primal of its
+    forward-mode Jacobian: one evaluation of the residual per step, whether the step
+    is accepted or not. (Evaluating the residual first and the Jacobian only where
+    the step was accepted simulated every accepted point twice: 12 evaluations for
+    these 8 steps.) Counted by a host callback in the residual, which runs each time
+    the compiled step evaluates it; Rosenbrock's residual from its classic start, so
+    that steps are both accepted and rejected."""
+    from jaxmr._identify.solver import FastLevenbergMarquardt
+
+    calls = []
+
+    def residuals_fn(free, static, data, extra):
+        jax.debug.callback(lambda: calls.append(1))
+        x = free["x"]
+        return jnp.stack([x[0] - 1.0, 10.0 * (x[1] - x[0] ** 2)])
+
+    ys = {"x": jnp.array([[-1.2, 1.0]])}
+    losses = []
+    _, (outcome,) = iterate(
+        FastLevenbergMarquardt(),
+        ys,
+        (residuals_fn, None, None, None),
+        None,
+        max_steps=8,
+        patience=100,
+        ftol=0.0,
+        report=lambda step, loss: losses.append(loss),
+    )
+    assert outcome.steps == 8
+    # Some steps were rejected (the best loss stayed), and some accepted.
+    assert len(set(losses)) < len(losses) and len(set(losses)) > 2, losses
+    assert len(calls) == 8, len(calls)
