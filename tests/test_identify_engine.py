@@ -559,6 +559,37 @@ def test_one_start_evaluates_its_first_step_once(monkeypatch):
     np.testing.assert_allclose(carried.values, anew.values, rtol=1e-9)
 
 
+def test_the_carried_first_step_compiles_nothing(monkeypatch):
+    """The first step's move into the scaled variables (p numbers and a p × p
+    eigendecomposition) is made on the host: as a jitted program it compiled for
+    0.1 s of every cold one-start fit. A fresh shape (97 samples, three parameters:
+    no program of another test can serve it) and a listener on XLA's compilations
+    while it runs; the path it starts is checked against stepping anew in
+    `test_one_start_evaluates_its_first_step_once`."""
+    import jaxmr._identify.solver as solver_module
+
+    compiled, calls = [], []
+    carry = solver_module._rescaled_first_step
+
+    def listen(event, duration, **kwargs):
+        if event == "/jax/core/compile/backend_compile_duration":
+            compiled.append(kwargs.get("fun_name"))
+
+    def watched(*args, **kwargs):
+        calls.append(1)
+        jax.monitoring.register_event_duration_secs_listener(listen)
+        try:
+            return carry(*args, **kwargs)
+        finally:
+            jax.monitoring.unregister_event_duration_listener(listen)
+
+    monkeypatch.setattr(solver_module, "_rescaled_first_step", watched)
+    runs = dahl_runs((4.0, 6.0), (1.5, 2.5), samples=97)
+    result = jaxmr.fit(dahl_guess(), runs, max_steps=3, **_QUICK)
+    assert len(calls) == 1 and result.num_steps == 3
+    assert compiled == [], compiled
+
+
 def test_a_step_evaluates_its_trial_point_once():
     """`FastLevenbergMarquardt` takes a trial point's residual as the primal of its
     forward-mode Jacobian: one evaluation of the residual per step, whether the step
