@@ -158,3 +158,65 @@ def test_a_fit_and_the_tuners_trace_each_step_once_on_two_host_devices():
         "tell",
     ):
         assert counts.get(function) == 1, (function, counts)
+
+
+def system_fit() -> dict:
+    """{name: array}: `fit_system` of three Bouc–Wen parameters (a sequential
+    simulation, one start) on 0.4 s of forced response; on two devices its
+    Jacobian's columns are split over them. With the times its step was compiled."""
+    import jax
+
+    from jaxmr._identify.system import SystemRecord, fit_system
+    from jaxmr._systems.oscillator import hysteretic_benchmark_oscillator
+    from tests.test_identify_system import (
+        SUBSTEPS,
+        _benchmark_start,
+        _multisine,
+        _simulate,
+    )
+
+    forced = _multisine(300, seed=3)
+    y = _simulate(hysteretic_benchmark_oscillator(), forced, 300)
+    record = SystemRecord(np.arange(300) / 750.0, y, forced)
+    compiled = []
+
+    def listen(event, duration, fun_name="", **kwargs):
+        if event == "/jax/core/compile/backend_compile_duration":
+            compiled.append(fun_name)
+
+    start = _benchmark_start(A=2e4, beta=-500.0, gamma=2000.0)
+    jax.monitoring.register_event_duration_secs_listener(listen)
+    try:
+        result = fit_system(start, record, substeps=SUBSTEPS, max_steps=6,
+                            progress=False)  # fmt: skip
+    finally:
+        jax.monitoring.unregister_event_duration_listener(listen)
+    return {
+        "values": np.asarray(result.values),
+        "history": np.asarray(result.history),
+        "std_errors": np.asarray(result.std_errors),
+        "step_compilations": np.array(compiled.count("jit(_step)")),
+    }
+
+
+def test_fit_system_splits_its_jacobian_over_two_host_devices(tmp_path):
+    """On two devices a fit from one start pushes half its Jacobian's columns on
+    each (`solver.column_mesh`): it finishes, compiles its step once, and takes the
+    one-device path. Tolerance 1e-9 relative: the same forward-mode arithmetic, 3
+    tangents a device instead of 6 in one, and JᵀJ formed from the gathered
+    columns (measured: the same bits)."""
+    from jaxmr._identify.solver import column_mesh
+
+    out = tmp_path / "two.npz"
+    _on_two_devices(
+        "import numpy as np\n"
+        "from jaxmr._identify.solver import column_mesh\n"
+        "assert column_mesh({'a': np.zeros(3)}) is not None\n"
+        "from tests.test_host_devices import system_fit\n"
+        f"np.savez({str(out)!r}, **system_fit())\n"
+    )
+    assert column_mesh({"a": np.zeros(3)}) is None  # this process: one device
+    two, one = dict(np.load(out)), system_fit()
+    assert two["step_compilations"] == 1 and one["step_compilations"] == 1
+    for name in ("values", "history", "std_errors"):
+        np.testing.assert_allclose(two[name], one[name], rtol=1e-9, err_msg=name)

@@ -22,7 +22,7 @@ from jax.flatten_util import ravel_pytree
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from .._custom_types import Array, Bool, Float
-from .._distribute import BATCH as MESH_AXIS, replicate, to_host
+from .._distribute import BATCH as MESH_AXIS, batch_mesh, replicate, to_host
 from .._misc import to_device
 from .._parameter import Bounded, Fixed, Positive, free_filter, is_parameter
 from .._traced import cached
@@ -236,6 +236,18 @@ def _one_matrix_at_a_time(fn):
     return jax.custom_batching.sequential_vmap(fn)
 
 
+def column_mesh(free) -> Mesh | None:
+    """The devices a fit from one start splits its Jacobian's columns over
+    (`residual.value_and_jacobian`): every device of this process (a CPU's cores, as
+    `jaxmr.devices.configure_cpu` makes them), where there are several, the fit runs
+    in one process and it has at least as many free variables; else None."""
+    mesh = batch_mesh(local=True)
+    size = sum(np.size(a) for a in jax.tree.leaves(free))
+    if jax.process_count() > 1 or mesh is None or size < mesh.size:
+        return None
+    return mesh
+
+
 def _next_trial(y, gram, gradient, radius):
     """The trial point after `y` (flat): `y` minus the damped Gauss–Newton step
     (`_damped_step`, λ = 1/`radius`); the loss reduction the model promises there;
@@ -317,7 +329,9 @@ class FirstStep(NamedTuple):
     outputs: tuple
 
 
-def scale_and_first_step(solver, residuals_fn, scaled_residuals, free, static, data):
+def scale_and_first_step(
+    solver, residuals_fn, scaled_residuals, free, static, data, columns=None
+):
     """The column scale (`column_scale`) of one start `free`, and, for a
     `FastLevenbergMarquardt`, `iterate`'s first step from it in the scaled
     variables (a `FirstStep`; None for other solvers), for `iterate` stepping that
@@ -334,18 +348,22 @@ def scale_and_first_step(solver, residuals_fn, scaled_residuals, free, static, d
     """
     if not isinstance(solver, FastLevenbergMarquardt):
         return column_scale(residuals_fn, free, static, data, None), None
-    unit = placed_like_data(
-        jax.tree.map(lambda a: to_device(np.ones(np.shape(a), a.dtype)), free), data
-    )
+    # Every array the step is given placed alike (`placed_like_data`; or whole on
+    # every device its columns are split over), so that it compiles once.
+    if columns is None:
+        place = lambda tree: placed_like_data(jax.tree.map(to_device, tree), data)
+        split = {}
+    else:
+        place = lambda tree: replicate(jax.tree.map(to_device, tree), columns)
+        split = {"columns": columns}
+    unit = place(jax.tree.map(lambda a: np.ones(np.shape(a), a.dtype), free))
     # On the host: `one_start` would compile a program to divide by ones.
-    ys = placed_like_data(
-        jax.tree.map(lambda a: to_device(to_host(a)[None]), free), data
-    )
+    ys = place(jax.tree.map(lambda a: to_host(a)[None], free))
     args = (scaled_residuals, static, data, unit)
     dynamic, static_state = eqx.partition(
         _init(solver, ys, args, None, None, None), eqx.is_array
     )
-    outputs = _step(solver, ys, dynamic, static_state, args, None, None, None)
+    outputs = _step(solver, ys, dynamic, static_state, args, None, None, None, **split)
     # The first step accepts the start: its JᵀJ is the start's, columns unscaled.
     # Unravelled in NumPy, like `free`'s leaves (their order and shapes).
     norms = np.sqrt(np.diagonal(to_host(outputs[1].gram)[0]))
@@ -356,12 +374,14 @@ def scale_and_first_step(solver, residuals_fn, scaled_residuals, free, static, d
         treedef, [p.reshape(np.shape(a)) for p, a in zip(parts, leaves, strict=True)]
     )
     scale = _scale_from_norms(norms, data)
+    if columns is not None:
+        scale = place(scale)
     return scale, FirstStep(
-        static_state, _rescaled_first_step(solver, outputs, static_state, scale, data)
+        static_state, _rescaled_first_step(solver, outputs, static_state, scale, place)
     )
 
 
-def _rescaled_first_step(solver, outputs, static_state, scale, data):
+def _rescaled_first_step(solver, outputs, static_state, scale, place):
     """A `FastLevenbergMarquardt`'s first step from one start (a batch of one), made
     with unit scale, as made in the variables divided by `scale`: the same accepted
     point, loss and radius; JᵀJ and Jᵀr in the new columns; the next trial point
@@ -370,7 +390,7 @@ def _rescaled_first_step(solver, outputs, static_state, scale, data):
     On the host, in NumPy (p numbers and a p × p eigendecomposition): as a jitted
     program of its own it compiled for 0.1 s of every cold single-start fit (the
     Bouc–Wen benchmark's 2.3 s to its target) to do microseconds of work. Its
-    arrays go back placed as `_step`'s are (`placed_like_data`), so that the next
+    arrays go back placed as the step's inputs were (`place`), so that the next
     step reuses its program."""
     ys, dynamic, loss, at, _, _ = outputs
     state = eqx.combine(dynamic, static_state)
@@ -388,7 +408,7 @@ def _rescaled_first_step(solver, outputs, static_state, scale, data):
     )
     host_scale = jax.tree.map(to_host, scale)
     divided = lambda tree: jax.tree.map(lambda a, c: to_host(a) / c, tree, host_scale)
-    placed = lambda tree: placed_like_data(jax.tree.map(to_device, tree), data)
+    placed = place
     # `tree_at`, not `dataclasses.replace`: the state's fields are batched here.
     state = eqx.tree_at(
         lambda st: (
@@ -541,9 +561,10 @@ def spread_starts(constrained, starts: int, spread: float, key, scale):
 # The loop
 
 
-def _lm_fn(y, args):
+def _lm_fn(y, args, columns=None):
     """optimistix's residual function. Its aux is (½‖r‖², y): the loss paired with the
-    point it belongs to, whatever step's aux `solver.step` returns."""
+    point it belongs to, whatever step's aux `solver.step` returns. `columns`: the
+    devices its Jacobian's columns are split over (`value_and_jacobian`), or None."""
     residuals_fn, static, data, extra = args
 
     # The residual carries its own materialised Jacobian: optimistix linearises the
@@ -557,7 +578,7 @@ def _lm_fn(y, args):
     @residual.defjvp
     def residual_jvp(primals, tangents):
         (y,), (ty,) = primals, tangents
-        r, jac = value_and_jacobian(residuals_fn, y, static, data, extra)
+        r, jac = value_and_jacobian(residuals_fn, y, static, data, extra, columns)
         out = sum(
             jnp.tensordot(j, t, axes=t.ndim)
             for j, t in zip(jax.tree.leaves(jac), jax.tree.leaves(ty), strict=True)
@@ -569,6 +590,13 @@ def _lm_fn(y, args):
 
 
 _OPTIONS = {"jac": "fwd"}
+
+
+@functools.cache
+def _lm_fn_by_columns(columns: Mesh):
+    """`_lm_fn` with its Jacobian's columns split over `columns` (one function per
+    mesh, so that a step traced with it is traced once)."""
+    return functools.partial(_lm_fn, columns=columns)
 
 
 # Module-level and jitted on their arguments. The solver state holds a jaxpr (static,
@@ -586,13 +614,19 @@ def _init(solver, ys, args, data_axis, chunk, mesh):
 # The step's outputs: the points, the state's arrays, the losses, the points they
 # belong to, and the flags (their structure, for a step read back: `cached`).
 @cached(lambda solver, ys, dynamic, *_: (ys, dynamic, 0, ys, 0, 0))
-def _step(solver, ys, dynamic, static_state, args, data_axis, chunk, mesh):
+def _step(
+    solver, ys, dynamic, static_state, args, data_axis, chunk, mesh, columns=None
+):
+    # `columns` (a `column_mesh`, for one unbatched member): the devices its
+    # Jacobian's columns are split over.
+    if columns is not None and not _unbatched((ys,), data_axis, chunk):
+        raise ValueError("a Jacobian split by columns is for one unbatched member.")
+    fn = _lm_fn if columns is None else _lm_fn_by_columns(columns)
+
     def one(y, dyn, args):
         state = eqx.combine(dyn, static_state)
-        y, state, (loss, at) = solver.step(
-            _lm_fn, y, args, _OPTIONS, state, frozenset()
-        )
-        done, result = solver.terminate(_lm_fn, y, args, _OPTIONS, state, frozenset())
+        y, state, (loss, at) = solver.step(fn, y, args, _OPTIONS, state, frozenset())
+        done, result = solver.terminate(fn, y, args, _OPTIONS, state, frozenset())
         failed = result != optx.RESULTS.successful
         return y, eqx.filter(state, eqx.is_array), loss, at, done, failed
 
@@ -702,6 +736,7 @@ def iterate(
     mesh=None,
     stop=None,
     first=None,
+    columns=None,
 ):
     """Levenberg–Marquardt on a batch of problems, stepped from Python.
 
@@ -715,7 +750,8 @@ def iterate(
     far (`StopReason.INTERRUPTED`; at least one step, the starts' evaluation, is
     made). A `KeyboardInterrupt` does the same; any other exception propagates (a
     programming error is not a fit result). `first`: its first step, made before
-    (`scale_and_first_step`'s `FirstStep` from the start `ys`), or None.
+    (`scale_and_first_step`'s `FirstStep` from the start `ys`), or None. `columns`:
+    a `column_mesh` for a batch of one, its arrays whole on each of its devices.
 
     Returns the best ys and one `Outcome` per member (its best loss, the history of
     the batch's best loss, the steps taken, its `StopReason`).
@@ -743,7 +779,15 @@ def iterate(
                 ys, dynamic, loss, at, done, bad = first.outputs
             else:
                 ys, dynamic, loss, at, done, bad = _step(
-                    solver, ys, dynamic, static_state, args, data_axis, chunk, mesh
+                    solver,
+                    ys,
+                    dynamic,
+                    static_state,
+                    args,
+                    data_axis,
+                    chunk,
+                    mesh,
+                    **({} if columns is None else {"columns": columns}),
                 )
             # Every process reads the whole batch (one collective when it is spread
             # over processes), so all take the same decisions below.

@@ -37,6 +37,7 @@ from .fitting import warn_if_float32
 from .result import FitResult, assemble, statistics
 from .solver import (
     FastLevenbergMarquardt,
+    column_mesh,
     iterate,
     multiply,
     one_start,
@@ -318,7 +319,10 @@ def fit_system(
     counts equally. Levenberg–Marquardt with exact forward-mode Jacobians through the
     simulation, columns scaled once at the start, stopped on LM's tolerance, on stalled
     progress or at `max_steps`, the best parameters kept on an exception or Ctrl-C
-    (all as `jaxmr.fit`).
+    (all as `jaxmr.fit`). With several devices in the process (a CPU's cores after
+    `jaxmr.devices.configure_cpu()`), the Jacobian's columns are split over them: the
+    simulation is one sequential loop, and each device pushes its share of the
+    tangents (the Bouc–Wen benchmark's step 0.07 s instead of 0.12 s on 2 cores).
 
     Which parameters are fitted: every array in `system` (mass, stiffness, the damper's
     parameters, ...) except those wrapped in `jaxmr.Fixed`; `jaxmr.Positive` and
@@ -412,8 +416,12 @@ def fit_system(
     # step's program is the one the fit reuses (given `static`, whose fixed
     # parameters are arrays, the step compiled twice: 1.4 s more on the Bouc–Wen
     # benchmark).
+    # On a multi-core CPU (`jaxmr.devices.configure_cpu`: a device per core) the
+    # one simulation loop runs on one core: its Jacobian's columns are split over
+    # the devices instead (`column_mesh`).
+    columns = column_mesh(free) if isinstance(solver, FastLevenbergMarquardt) else None
     scale, first = scale_and_first_step(
-        solver, residuals, scaled_residuals, free, None, None
+        solver, residuals, scaled_residuals, free, None, None, columns
     )
     best_y, (outcome,) = iterate(
         solver,
@@ -427,6 +435,7 @@ def fit_system(
         progress_printer(progress),
         stop=stop,
         first=first,
+        columns=columns,
     )
     free_best = unscaled_member(best_y, scale, 0)
     return _system_result(
