@@ -96,14 +96,29 @@ class CompileClock:
 
 
 class LossTrace:
-    """(time since `started` [s], loss) pairs, the time from `time.time()`."""
+    """(time since `started` [s], loss) pairs, the time from `time.time()`; and the
+    process's CPU time (`time.process_time()`: every thread's, since the trace was
+    made) at each pair, in `cpu`."""
 
     def __init__(self, started: float):
         self.started = started
         self.points: list[tuple[float, float]] = []
+        self.cpu: list[float] = []
+        self._cpu_started = time.process_time()
 
     def add(self, loss: float) -> None:
         self.points.append((time.time() - self.started, float(loss)))
+        self.cpu.append(time.process_time() - self._cpu_started)
+
+    def cpu_to(self, target: float) -> float:
+        """The CPU time when the loss was first at most `target`, or at the last
+        point where it never was."""
+        if len(self.cpu) != len(self.points):  # a trace rebuilt from its points
+            return float("nan")
+        for (_, loss), cpu in zip(self.points, self.cpu, strict=True):
+            if loss <= target:
+                return cpu
+        return self.cpu[-1] if self.cpu else 0.0
 
     def time_to(self, target: float) -> float | None:
         """The first time the loss was at most `target`, or None."""
@@ -133,6 +148,8 @@ def timed_figures(
         "seconds": seconds,
         "compile_seconds": compile_seconds,
         "seconds_excluding_compile": seconds - compile_seconds,
+        # Every thread's: jaxmr's may use several cores where scipy's loop uses one.
+        "cpu_seconds": trace.cpu_to(target),
         "total_seconds": total,
         "best_loss": trace.best(),
     }
@@ -226,7 +243,9 @@ def speedups(jaxmr: dict, baselines: dict[str, dict], prefix: str) -> dict:
     """`speedup_<prefix>_fd` and `speedup_<prefix>_exact_jacobian`, each with its
     `_excluding_compile`: the fastest baseline of each kind (scipy's methods, best
     of) over jaxmr, each to the target; `..._lower_bound` where that baseline never
-    reached it (its time is the budget or its own stop)."""
+    reached it (its time is the budget or its own stop); `..._cpu_time`: the same
+    baseline's CPU time over jaxmr's (every thread's, compilation included: the cost
+    in core-seconds where jaxmr uses several cores)."""
     out = {}
     for kind, exact in (("fd", False), ("exact_jacobian", True)):
         runs = [b for b in baselines.values() if b["exact"] == exact]
@@ -238,6 +257,8 @@ def speedups(jaxmr: dict, baselines: dict[str, dict], prefix: str) -> dict:
         out[f"{name}_excluding_compile"] = (
             best["seconds_excluding_compile"] / jaxmr["seconds_excluding_compile"]
         )
+        if "cpu_seconds" in best and "cpu_seconds" in jaxmr:
+            out[f"{name}_cpu_time"] = best["cpu_seconds"] / jaxmr["cpu_seconds"]
         out[f"{name}_method"] = best["method"]
         out[f"{name}_lower_bound"] = not best["reached"]
     return out
