@@ -44,7 +44,9 @@ equal accuracy (each to `fit_system`'s final loss × (1 + 1e-3), or for at most
 `--budget-factor` × its time), each fit in a fresh process with its compilation
 measured (`_fit_baselines.py`): `speedup_vs_scipy_fd` and
 `speedup_vs_scipy_exact_jacobian` (the fastest of each kind over `fit_system`,
-compilation included) and their `_excluding_compile`.
+compilation included) and their `_excluding_compile` and `_cpu_time` (the
+process's CPU time to the target, every thread's: `fit_system` splits its Jacobian's
+columns over the cores, scipy's finite differences run one after another).
 """
 
 import argparse

@@ -33,7 +33,9 @@ Measures, in one run:
 - `boucwen`: the Bouc–Wen benchmark's training record, `fit_system` against scipy's
   least_squares the same way (`boucwen_benchmark.against_scipy`):
   `speedup_vs_scipy_fd`, `speedup_vs_scipy_exact_jacobian` and their
-  `_excluding_compile`.
+  `_excluding_compile` and `_cpu_time` (`fit_system` splits its Jacobian over the
+  cores, scipy's loop is serial: the same baseline's CPU time, every thread's, over
+  jaxmr's).
 
 The rule of the speed comparisons (`_fit_baselines`): each fit runs in a fresh
 process with JAX's persistent cache off; jaxmr's final loss × (1 + 1e-3) is the
