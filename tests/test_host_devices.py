@@ -220,3 +220,51 @@ def test_fit_system_splits_its_jacobian_over_two_host_devices(tmp_path):
     assert two["step_compilations"] == 1 and one["step_compilations"] == 1
     for name in ("values", "history", "std_errors"):
         np.testing.assert_allclose(two[name], one[name], rtol=1e-9, err_msg=name)
+
+
+def one_start_fit() -> dict:
+    """{name: array}: `fit` from one start on 3 experiments in 3 lanes (a count 2
+    devices do not divide, so the lanes stay on one and the Jacobian's columns are
+    split); with the times its step was compiled."""
+    import jax
+
+    import jaxmr
+
+    P = jaxmr.Positive
+    guess = jaxmr.Dahl(k_x=P(0.02), k_w=P(2.0), rho=P(8.0))
+    compiled = []
+
+    def listen(event, duration, fun_name="", **kwargs):
+        if event == "/jax/core/compile/backend_compile_duration":
+            compiled.append(fun_name)
+
+    jax.monitoring.register_event_duration_secs_listener(listen)
+    try:
+        result = jaxmr.fit(guess, _runs(1500, (3.0, 5.0, 8.0), (1.0, 2.0, 3.0)),
+                           lanes=3, max_steps=5, progress=False,
+                           statistics_refinement=1)  # fmt: skip
+    finally:
+        jax.monitoring.unregister_event_duration_listener(listen)
+    return {
+        "values": np.asarray(result.values),
+        "history": np.asarray(result.history),
+        "std_errors": np.asarray(result.std_errors),
+        "step_compilations": np.array(compiled.count("jit(_step)")),
+    }
+
+
+def test_a_one_start_fit_whose_lanes_stay_on_one_device_splits_its_columns(tmp_path):
+    """3 lanes on 2 devices: `_lanes_on_devices` leaves them on one, and the fit
+    splits its Jacobian's columns instead, its data whole on both. It compiles its
+    step once and takes the one-device path (measured: the same bits; tolerance
+    1e-9 relative, as for `fit_system`)."""
+    out = tmp_path / "two.npz"
+    _on_two_devices(
+        "import numpy as np\n"
+        "from tests.test_host_devices import one_start_fit\n"
+        f"np.savez({str(out)!r}, **one_start_fit())\n"
+    )
+    two, one = dict(np.load(out)), one_start_fit()
+    assert two["step_compilations"] == 1 and one["step_compilations"] == 1
+    for name in ("values", "history", "std_errors"):
+        np.testing.assert_allclose(two[name], one[name], rtol=1e-9, err_msg=name)

@@ -9,11 +9,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import optimistix as optx
+from jax.sharding import NamedSharding
 
 from .._channel import ChannelDelay
 from .._current_law import ConstantLaw, is_law
 from .._damper import Damper, with_fitted_range
-from .._distribute import batch_mesh, gather, spread, to_host
+from .._distribute import batch_mesh, gather, replicate, spread, to_host
 from .._hysteresis import AbstractHysteresis
 from .._integrate import FixedStep
 from .._misc import warn_if_float32
@@ -38,6 +39,7 @@ from .residual import (
 from .result import FitResult, assemble, kept_groups, statistics, statistics_from
 from .solver import (
     FastLevenbergMarquardt,
+    column_mesh,
     column_scale,
     divide,
     iterate,
@@ -272,6 +274,9 @@ def fit(
     - `solver`: an optimistix least-squares solver (default
       `FastLevenbergMarquardt()`; its `rtol`, `atol` are LM's convergence test).
     - `lanes`: how many scans the experiments are packed into (default: up to 8).
+      With several devices the lanes are spread over them where their count divides
+      evenly; a fit from one start whose lanes are not splits its Jacobian's columns
+      over the devices instead.
     - `statistics_refinement`: the standard errors come from a Jacobian with steps
       this many times shorter than the fit's (1: the fit's own).
     - `stop`: a `threading.Event` (anything with `is_set()`), e.g. set from another
@@ -302,6 +307,14 @@ def fit(
     one_start = starts is None or (
         starts == 1 if isinstance(starts, int) else len(starts) == 1
     )
+    # A fit from one start whose lanes stay on one device (too few, or a count the
+    # devices do not divide: `_lanes_on_devices`) splits its Jacobian's columns over
+    # them instead (`column_mesh`), its data whole on each.
+    lanes_spread = isinstance(getattr(data.step, "sharding", None), NamedSharding)
+    columns = None
+    if one_start and isinstance(solver, FastLevenbergMarquardt) and not lanes_spread:
+        columns = column_mesh(free)
+        data = replicate(data, columns)
     first = None
     starts_are_model = starts is None or isinstance(starts, int)
     if isinstance(starts, int) and starts != 1:
@@ -319,7 +332,7 @@ def fit(
         fit_residuals, unscaled = _fit_residuals(_starts_inside(ys, static, data))
         if one_start:
             scale, first = scale_and_first_step(
-                solver, residuals, fit_residuals, free, static, data
+                solver, residuals, fit_residuals, free, static, data, columns
             )
             if not starts_are_model:
                 first = None  # made from the model, not from the start given
@@ -336,6 +349,7 @@ def fit(
         progress_printer(progress),
         stop=stop,
         first=first,
+        columns=columns,
     )
     losses = [o.loss if np.isfinite(o.loss) else np.inf for o in outcomes]
     best = int(np.argmin(losses))

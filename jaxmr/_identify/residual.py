@@ -197,20 +197,24 @@ def _value_and_jacobian_by_columns(residuals_fn, free, static, data, extra, mesh
     flat, unravel = ravel_pytree(free)
     p = flat.size
     basis = jnp.eye(-(-p // mesh.size) * mesh.size, p, dtype=flat.dtype)
-    residual = lambda x: traced_once(residuals_fn, unravel(x), static, data, extra)
+    # The point and the data cross into `shard_map` as its arguments, whole on each
+    # device: closed over, arrays placed on the mesh outside failed its gathers.
+    operands, rest = eqx.partition((flat, static, data, extra), eqx.is_array)
 
-    def block(rows):
-        push = lambda v: jax.jvp(residual, (flat,), (v,))
+    def block(rows, operands):
+        x, static, data, extra = eqx.combine(operands, rest)
+        residual = lambda x: traced_once(residuals_fn, unravel(x), static, data, extra)
+        push = lambda v: jax.jvp(residual, (x,), (v,))
         r, tangents = jax.vmap(push, out_axes=(None, 0))(rows)
         return r, jax.lax.all_gather(tangents, BATCH, tiled=True)[:p]
 
     r, columns = jax.shard_map(
         block,
         mesh=mesh,
-        in_specs=PartitionSpec(BATCH),
+        in_specs=(PartitionSpec(BATCH), PartitionSpec()),
         out_specs=PartitionSpec(),
         check_vma=False,
-    )(basis)
+    )(basis, operands)
     # Row by row of the Jacobian (p numbers each), as jacfwd lays it out: each leaf
     # of `free` with the residual's axes first.
     rows = jnp.moveaxis(columns, 0, -1).reshape(-1, p)

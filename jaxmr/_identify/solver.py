@@ -352,10 +352,8 @@ def scale_and_first_step(
     # every device its columns are split over), so that it compiles once.
     if columns is None:
         place = lambda tree: placed_like_data(jax.tree.map(to_device, tree), data)
-        split = {}
     else:
         place = lambda tree: replicate(jax.tree.map(to_device, tree), columns)
-        split = {"columns": columns}
     unit = place(jax.tree.map(lambda a: np.ones(np.shape(a), a.dtype), free))
     # On the host: `one_start` would compile a program to divide by ones.
     ys = place(jax.tree.map(lambda a: to_host(a)[None], free))
@@ -363,7 +361,8 @@ def scale_and_first_step(
     dynamic, static_state = eqx.partition(
         _init(solver, ys, args, None, None, None), eqx.is_array
     )
-    outputs = _step(solver, ys, dynamic, static_state, args, None, None, None, **split)
+    # `columns` passed by position: `cached` keeps only calls without keywords.
+    outputs = _step(solver, ys, dynamic, static_state, args, None, None, None, columns)
     # The first step accepts the start: its JᵀJ is the start's, columns unscaled.
     # Unravelled in NumPy, like `free`'s leaves (their order and shapes).
     norms = np.sqrt(np.diagonal(to_host(outputs[1].gram)[0]))
@@ -787,7 +786,7 @@ def iterate(
                     data_axis,
                     chunk,
                     mesh,
-                    **({} if columns is None else {"columns": columns}),
+                    columns,
                 )
             # Every process reads the whole batch (one collective when it is spread
             # over processes), so all take the same decisions below.
