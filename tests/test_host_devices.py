@@ -19,6 +19,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 HERE = Path(__file__).parent
 
@@ -160,12 +161,33 @@ def test_a_fit_and_the_tuners_trace_each_step_once_on_two_host_devices():
         assert counts.get(function) == 1, (function, counts)
 
 
-def system_fit() -> dict:
-    """{name: array}: `fit_system` of three Bouc–Wen parameters (a sequential
-    simulation, one start) on 0.4 s of forced response; on two devices its
-    Jacobian's columns are split over them. With the times its step was compiled."""
+def _fitted(fit) -> dict:
+    """{name: array} of `fit()`'s result (a `FitResult`), with the times its step was
+    compiled."""
     import jax
 
+    compiled = []
+
+    def listen(event, duration, fun_name="", **kwargs):
+        if event == "/jax/core/compile/backend_compile_duration":
+            compiled.append(fun_name)
+
+    jax.monitoring.register_event_duration_secs_listener(listen)
+    try:
+        result = fit()
+    finally:
+        jax.monitoring.unregister_event_duration_listener(listen)
+    return {
+        "values": np.asarray(result.values),
+        "history": np.asarray(result.history),
+        "std_errors": np.asarray(result.std_errors),
+        "step_compilations": np.array(compiled.count("jit(_step)")),
+    }
+
+
+def system_fit() -> dict:
+    """`_fitted` of `fit_system` of three Bouc–Wen parameters (a sequential
+    simulation, one start) on 0.4 s of forced response."""
     from jaxmr._identify.system import SystemRecord, fit_system
     from jaxmr._systems.oscillator import hysteretic_benchmark_oscillator
     from tests.test_identify_system import (
@@ -178,33 +200,37 @@ def system_fit() -> dict:
     forced = _multisine(300, seed=3)
     y = _simulate(hysteretic_benchmark_oscillator(), forced, 300)
     record = SystemRecord(np.arange(300) / 750.0, y, forced)
-    compiled = []
-
-    def listen(event, duration, fun_name="", **kwargs):
-        if event == "/jax/core/compile/backend_compile_duration":
-            compiled.append(fun_name)
-
     start = _benchmark_start(A=2e4, beta=-500.0, gamma=2000.0)
-    jax.monitoring.register_event_duration_secs_listener(listen)
-    try:
-        result = fit_system(start, record, substeps=SUBSTEPS, max_steps=6,
-                            progress=False)  # fmt: skip
-    finally:
-        jax.monitoring.unregister_event_duration_listener(listen)
-    return {
-        "values": np.asarray(result.values),
-        "history": np.asarray(result.history),
-        "std_errors": np.asarray(result.std_errors),
-        "step_compilations": np.array(compiled.count("jit(_step)")),
-    }
+    return _fitted(
+        lambda: fit_system(
+            start, record, substeps=SUBSTEPS, max_steps=6, progress=False
+        )
+    )
 
 
-def test_fit_system_splits_its_jacobian_over_two_host_devices(tmp_path):
-    """On two devices a fit from one start pushes half its Jacobian's columns on
-    each (`solver.column_mesh`): it finishes, compiles its step once, and takes the
-    one-device path. Tolerance 1e-9 relative: the same forward-mode arithmetic, 3
-    tangents a device instead of 6 in one, and JᵀJ formed from the gathered
-    columns (measured: the same bits)."""
+def one_start_fit() -> dict:
+    """`_fitted` of `fit` from one start on 3 experiments in 3 lanes (a count 2
+    devices do not divide, so the lanes stay on one)."""
+    import jaxmr
+
+    P = jaxmr.Positive
+    guess = jaxmr.Dahl(k_x=P(0.02), k_w=P(2.0), rho=P(8.0))
+    runs = _runs(1500, (3.0, 5.0, 8.0), (1.0, 2.0, 3.0))
+    return _fitted(
+        lambda: jaxmr.fit(
+            guess, runs, lanes=3, max_steps=5, progress=False, statistics_refinement=1
+        )  # fmt: skip
+    )
+
+
+@pytest.mark.parametrize("name", ["system_fit", "one_start_fit"])
+def test_a_one_start_fit_splits_its_jacobian_over_two_host_devices(name, tmp_path):
+    """On two devices a fit from one start whose lanes stay on one device
+    (`fit_system`'s one record; `fit`'s 3 lanes, which `_lanes_on_devices` leaves
+    whole) pushes half its Jacobian's columns on each (`solver.column_mesh`): it
+    finishes, compiles its step once, and takes the one-device path. Tolerance 1e-9
+    relative: the same forward-mode arithmetic, 3 tangents a device instead of 6 in
+    one, and JᵀJ formed from the gathered columns (measured: the same bits)."""
     from jaxmr._identify.solver import column_mesh
 
     out = tmp_path / "two.npz"
@@ -212,59 +238,11 @@ def test_fit_system_splits_its_jacobian_over_two_host_devices(tmp_path):
         "import numpy as np\n"
         "from jaxmr._identify.solver import column_mesh\n"
         "assert column_mesh({'a': np.zeros(3)}) is not None\n"
-        "from tests.test_host_devices import system_fit\n"
-        f"np.savez({str(out)!r}, **system_fit())\n"
+        f"from tests.test_host_devices import {name}\n"
+        f"np.savez({str(out)!r}, **{name}())\n"
     )
     assert column_mesh({"a": np.zeros(3)}) is None  # this process: one device
-    two, one = dict(np.load(out)), system_fit()
+    two, one = dict(np.load(out)), globals()[name]()
     assert two["step_compilations"] == 1 and one["step_compilations"] == 1
-    for name in ("values", "history", "std_errors"):
-        np.testing.assert_allclose(two[name], one[name], rtol=1e-9, err_msg=name)
-
-
-def one_start_fit() -> dict:
-    """{name: array}: `fit` from one start on 3 experiments in 3 lanes (a count 2
-    devices do not divide, so the lanes stay on one and the Jacobian's columns are
-    split); with the times its step was compiled."""
-    import jax
-
-    import jaxmr
-
-    P = jaxmr.Positive
-    guess = jaxmr.Dahl(k_x=P(0.02), k_w=P(2.0), rho=P(8.0))
-    compiled = []
-
-    def listen(event, duration, fun_name="", **kwargs):
-        if event == "/jax/core/compile/backend_compile_duration":
-            compiled.append(fun_name)
-
-    jax.monitoring.register_event_duration_secs_listener(listen)
-    try:
-        result = jaxmr.fit(guess, _runs(1500, (3.0, 5.0, 8.0), (1.0, 2.0, 3.0)),
-                           lanes=3, max_steps=5, progress=False,
-                           statistics_refinement=1)  # fmt: skip
-    finally:
-        jax.monitoring.unregister_event_duration_listener(listen)
-    return {
-        "values": np.asarray(result.values),
-        "history": np.asarray(result.history),
-        "std_errors": np.asarray(result.std_errors),
-        "step_compilations": np.array(compiled.count("jit(_step)")),
-    }
-
-
-def test_a_one_start_fit_whose_lanes_stay_on_one_device_splits_its_columns(tmp_path):
-    """3 lanes on 2 devices: `_lanes_on_devices` leaves them on one, and the fit
-    splits its Jacobian's columns instead, its data whole on both. It compiles its
-    step once and takes the one-device path (measured: the same bits; tolerance
-    1e-9 relative, as for `fit_system`)."""
-    out = tmp_path / "two.npz"
-    _on_two_devices(
-        "import numpy as np\n"
-        "from tests.test_host_devices import one_start_fit\n"
-        f"np.savez({str(out)!r}, **one_start_fit())\n"
-    )
-    two, one = dict(np.load(out)), one_start_fit()
-    assert two["step_compilations"] == 1 and one["step_compilations"] == 1
-    for name in ("values", "history", "std_errors"):
-        np.testing.assert_allclose(two[name], one[name], rtol=1e-9, err_msg=name)
+    for key in ("values", "history", "std_errors"):
+        np.testing.assert_allclose(two[key], one[key], rtol=1e-9, err_msg=key)
