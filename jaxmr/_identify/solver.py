@@ -407,7 +407,6 @@ def _rescaled_first_step(solver, outputs, static_state, scale, place):
     )
     host_scale = jax.tree.map(to_host, scale)
     divided = lambda tree: jax.tree.map(lambda a, c: to_host(a) / c, tree, host_scale)
-    placed = place
     # `tree_at`, not `dataclasses.replace`: the state's fields are batched here.
     state = eqx.tree_at(
         lambda st: (
@@ -419,7 +418,7 @@ def _rescaled_first_step(solver, outputs, static_state, scale, place):
             st.result,
         ),
         state,
-        placed(
+        place(
             (
                 (y / s - step)[None],
                 gram[None],
@@ -434,12 +433,12 @@ def _rescaled_first_step(solver, outputs, static_state, scale, place):
     # Compared on the host: `!=` of two `RESULTS` compiles an eager program.
     code = lambda r: np.reshape(to_host(jax.tree.leaves(r)[0]), (1,))
     return (
-        placed(divided(ys)),
+        place(divided(ys)),
         eqx.filter(state, eqx.is_array),
         loss,
-        placed(divided(at)),
-        placed(np.reshape(to_host(done), (1,))),
-        placed(code(verdict) != code(optx.RESULTS.successful)),
+        place(divided(at)),
+        place(np.reshape(to_host(done), (1,))),
+        place(code(verdict) != code(optx.RESULTS.successful)),
     )
 
 
