@@ -231,17 +231,22 @@ def test_a_one_start_fit_splits_its_jacobian_over_two_host_devices(name, tmp_pat
     finishes, compiles its step once, and takes the one-device path. Tolerance 1e-9
     relative: the same forward-mode arithmetic, 3 tangents a device instead of 6 in
     one, and JᵀJ formed from the gathered columns (measured: the same bits)."""
+    from jaxmr import FastLevenbergMarquardt
     from jaxmr._identify.solver import column_mesh
 
     out = tmp_path / "two.npz"
     _on_two_devices(
         "import numpy as np\n"
         "from jaxmr._identify.solver import column_mesh\n"
-        "assert column_mesh({'a': np.zeros(3)}) is not None\n"
+        "from jaxmr import FastLevenbergMarquardt as LM\n"
+        "assert column_mesh(LM(), {'a': np.zeros(3)}, None) is not None\n"
+        "assert column_mesh(LM(), {'a': np.zeros(1)}, None) is None\n"
+        "assert column_mesh(object(), {'a': np.zeros(3)}, None) is None\n"
         f"from tests.test_host_devices import {name}\n"
         f"np.savez({str(out)!r}, **{name}())\n"
     )
-    assert column_mesh({"a": np.zeros(3)}) is None  # this process: one device
+    # This process: one device.
+    assert column_mesh(FastLevenbergMarquardt(), {"a": np.zeros(3)}, None) is None
     two, one = dict(np.load(out)), globals()[name]()
     assert two["step_compilations"] == 1 and one["step_compilations"] == 1
     for key in ("values", "history", "std_errors"):

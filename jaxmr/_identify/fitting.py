@@ -9,7 +9,6 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import optimistix as optx
-from jax.sharding import NamedSharding
 
 from .._channel import ChannelDelay
 from .._current_law import ConstantLaw, is_law
@@ -310,11 +309,8 @@ def fit(
     # A fit from one start whose lanes stay on one device (too few, or a count the
     # devices do not divide: `_lanes_on_devices`) splits its Jacobian's columns over
     # them instead (`column_mesh`), its data whole on each.
-    lanes_spread = isinstance(getattr(data.step, "sharding", None), NamedSharding)
-    columns = None
-    if one_start and isinstance(solver, FastLevenbergMarquardt) and not lanes_spread:
-        columns = column_mesh(free)
-        data = replicate(data, columns)
+    columns = column_mesh(solver, free, data) if one_start else None
+    data = replicate(data, columns)
     first = None
     starts_are_model = starts is None or isinstance(starts, int)
     if isinstance(starts, int) and starts != 1:

@@ -236,14 +236,24 @@ def _one_matrix_at_a_time(fn):
     return jax.custom_batching.sequential_vmap(fn)
 
 
-def column_mesh(free) -> Mesh | None:
-    """The devices a fit from one start splits its Jacobian's columns over
-    (`residual.value_and_jacobian`): every device of this process (a CPU's cores, as
-    `jaxmr.devices.configure_cpu` makes them), where there are several, the fit runs
-    in one process and it has at least as many free variables; else None."""
+def column_mesh(solver, free, data) -> Mesh | None:
+    """The devices a fit from one start with `solver` splits its Jacobian's columns
+    over (`residual.value_and_jacobian`): every device of this process (a CPU's
+    cores, as `jaxmr.devices.configure_cpu` makes them), where there are several, the
+    solver is a `FastLevenbergMarquardt`, the fit runs in one process, it has at
+    least as many free variables, and its `data` (None where the residual closes
+    over them, as `fit_system`'s does) are not already spread over the devices by
+    lanes (`placed_like_data`); else None."""
     mesh = batch_mesh(local=True)
     size = sum(np.size(a) for a in jax.tree.leaves(free))
-    if jax.process_count() > 1 or mesh is None or size < mesh.size:
+    lanes = getattr(getattr(data, "step", None), "sharding", None)
+    if (
+        not isinstance(solver, FastLevenbergMarquardt)
+        or isinstance(lanes, NamedSharding)
+        or jax.process_count() > 1
+        or mesh is None
+        or size < mesh.size
+    ):
         return None
     return mesh
 

@@ -419,7 +419,7 @@ def fit_system(
     # On a multi-core CPU (`jaxmr.devices.configure_cpu`: a device per core) the
     # one simulation loop runs on one core: its Jacobian's columns are split over
     # the devices instead (`column_mesh`).
-    columns = column_mesh(free) if isinstance(solver, FastLevenbergMarquardt) else None
+    columns = column_mesh(solver, free, None)
     scale, first = scale_and_first_step(
         solver, residuals, scaled_residuals, free, None, None, columns
     )
