@@ -13,6 +13,7 @@ import jaxmr
 from jaxmr._identify.data import pack
 from jaxmr._identify.residual import residuals
 from jaxmr._identify.result import (
+    _bartlett_lags,
     jacobian_matrix,
     kept_groups,
     poorly_determined,
@@ -53,6 +54,27 @@ def ar1(rng, n, rho):
     for k in range(1, n):
         out[k] = rho * out[k - 1] + np.sqrt(1 - rho**2) * e[k]
     return out
+
+
+@pytest.mark.parametrize(
+    "n, p, bandwidth",
+    [(50, 3, 7.3), (1000, 5, 40.2), (300, 2, 299.0), (40, 2, 90.0), (10, 4, 1.0)],
+)
+def test_bartlett_sum_is_the_sum_over_lags(n, p, bandwidth):
+    """The Newey–West middle's weighted lag sum, computed by one FFT correlation, is
+    the loop over lags it replaced: Σ_{1 ≤ l < bandwidth} (1 − l/bandwidth) Σ_t
+    h_{t+l} h_tᵀ, lags past the series included (they add nothing) and none at all
+    for a bandwidth of 1. Tolerance 1e-12 of the largest entry: the FFT's rounding
+    (measured ≤ 1.3e-15 on 5 000 × 11 random walks)."""
+    h = np.random.default_rng(n).standard_normal((n, p)).cumsum(axis=0)
+    expected = np.zeros((p, p))
+    for lag in range(1, int(np.ceil(bandwidth))):
+        expected += (1 - lag / bandwidth) * (h[lag:].T @ h[:-lag])
+    got = _bartlett_lags(h, bandwidth)
+    scale = max(np.max(np.abs(expected)), 1.0)
+    np.testing.assert_allclose(got, expected, rtol=0, atol=1e-12 * scale)
+    if bandwidth <= 1:
+        assert not np.any(got)
 
 
 @pytest.fixture(scope="module")

@@ -608,11 +608,29 @@ def _long_run(r, J, prewhiten: bool, kernel: bool):
     h = X * u[:, None]
     S = h.T @ h
     if kernel:
-        bandwidth = bartlett_bandwidth(lag1(u), len(u))
-        for lag in range(1, int(np.ceil(bandwidth))):
-            G = h[lag:].T @ h[:-lag]
-            S += (1 - lag / bandwidth) * (G + G.T)
+        G = _bartlett_lags(h, bartlett_bandwidth(lag1(u), len(u)))
+        S += G + G.T
     return S
+
+
+def _bartlett_lags(h, bandwidth: float):
+    """Σ_{l ≥ 1} w_l G_l with G_l = Σ_t h_{t+l} h_tᵀ and the Bartlett weights w_l = 1 −
+    l/bandwidth (lags below the bandwidth), as K̃ᵀh with K̃_t = Σ_l w_l h_{t+l}: one
+    FFT correlation of each column with the weights. The same sum as a loop over the
+    lags, O(n p log n) instead of O(n p² L): a loop of `h[l:].T @ h[:-l]` over
+    the several hundred lags of a strongly correlated residual took 4 s of a 5-file
+    Spencer fit's 19 s (2026-11-27)."""
+    n, p = h.shape
+    lags = np.arange(1, min(int(np.ceil(bandwidth)), n))
+    if lags.size == 0:
+        return np.zeros((p, p))
+    # Zero-padded beyond n + L, so that the circular correlation never wraps.
+    size = 1 << int(np.ceil(np.log2(n + lags[-1] + 1)))
+    kernel = np.zeros(size)
+    kernel[size - lags] = 1 - lags / bandwidth  # circular: kernel[−l] = w_l
+    spectrum = np.fft.rfft(h, size, axis=0) * np.fft.rfft(kernel)[:, None]
+    weighted = np.fft.irfft(spectrum, size, axis=0)[:n]
+    return weighted.T @ h
 
 
 def _middle(r, Js, groups, bread, errors: str):
