@@ -428,6 +428,118 @@ def test_errors(files, tmp_path, capsys):
     assert "not a JSON parameter file" in err
 
 
+def test_fit_refuses_options_that_would_change_nothing(files, tmp_path, capsys):
+    """The same file twice (it would count twice, its errors shrinking by √2), and
+    auto's options with one model, are refused before any fit, naming them."""
+    out = tmp_path / "p.json"
+    twice = ["fit", "--model", "dahl", "--out", out, files[0], files[1]]
+    err = _error(
+        [*twice, files[0].parent / ".." / files[0].parent.name / files[0].name], capsys
+    )
+    assert "is given twice" in err
+    err = _error(
+        ["fit", "--model", "dahl", "--holdout", files[0], "--finalists", "2"]
+        + ["--out", out, *files],
+        capsys,
+    )
+    assert "--holdout, --finalists: only with --model auto" in err
+    assert not out.exists()
+
+
+def test_processing_longer_than_a_record_is_an_error(fitted, files, tmp_path, capsys):
+    """A discarded start or smoothing longer than the record: one line naming the
+    option and both durations, from every command (it had been a traceback from
+    `predict` and `report`, and a fit to a flattened force from `fit`)."""
+    _, params, _ = fitted
+    err = _error(
+        ["predict", params, files[0], "--out", tmp_path / "p.csv", "--discard", "100"],
+        capsys,
+    )
+    assert "jaxmr predict: error: --discard:" in err and "leaves no sample" in err
+    err = _error(
+        ["fit", "--model", "dahl", "--smoothing", "100", "--out", tmp_path / "f.json"]
+        + list(files),
+        capsys,
+    )
+    assert "--smoothing:" in err and "wider than the record" in err
+    long_discard = tmp_path / "long.csv"
+    text = files[0].read_text()
+    long_discard.write_text("# discard: 10 s\n" + text)
+    err = _error(["report", params, long_discard, "--out", tmp_path / "r"], capsys)
+    assert "jaxmr report: error:" in err and "leaves no sample" in err
+
+
+def test_predict_and_report_check_the_files_device(fitted, files, tmp_path, capsys):
+    """A model fitted to a damper driven by current refuses a brake's file and a file
+    driven by voltage (read in the other units, its answer looked plausible), names
+    a file beyond the fitted range (printed and in the written file), and says when
+    the measured force is itself a jaxmr prediction."""
+    _, params, _ = fitted
+    brake = tmp_path / "brake.csv"
+    jaxmr.data.write_csv(_experiment(0.5, None, force=False, rotary=True), brake)
+    err = _error(["predict", params, brake, "--out", tmp_path / "b.csv"], capsys)
+    assert "is a rotary device driven by current, but the model of" in err
+    assert "fitted to a linear device driven by current" in err
+    measured = jaxmr.data.read_csv(files[1])
+    voltage = tmp_path / "voltage.csv"
+    jaxmr.data.write_csv(dataclasses.replace(measured, drive="voltage"), voltage)
+    err = _error(["report", params, voltage, "--out", tmp_path / "r"], capsys)
+    assert "is a linear device driven by voltage" in err
+    # Within the range: no warning. At 2 A: said, and written into the file.
+    inside = tmp_path / "inside.csv"
+    assert main(["predict", str(params), str(files[1]), "--out", str(inside)]) == 0
+    assert "beyond the range" not in capsys.readouterr().err
+    far = tmp_path / "far.csv"
+    jaxmr.data.write_csv(
+        dataclasses.replace(measured, current=np.full(len(measured), 2.0)), far
+    )
+    out = tmp_path / "far_pred.csv"
+    assert main(["predict", str(params), str(far), "--out", str(out)]) == 0
+    err = capsys.readouterr().err
+    assert "jaxmr predict: warning: " in err and "lies beyond the range" in err
+    assert "current spans [2, 2] A, the fitted range [0, 1] A" in err
+    assert (
+        "# warning: " in out.read_text() and "lies beyond the range" in out.read_text()
+    )
+    # Its own output as the measurement: said.
+    assert (
+        main(
+            ["predict", str(params), str(inside), "--out", str(tmp_path / "again.csv")]
+        )
+        == 0
+    )
+    err = capsys.readouterr().err
+    assert "the F column of" in err and "was predicted by jaxmr" in err
+
+
+def test_fit_warns_when_no_file_reverses(files, tmp_path, capsys):
+    """Records that never reverse the velocity show no hysteresis loop: `fit` says so
+    (and records it in its report); a record that reverses raises no such warning."""
+    t = np.linspace(0.0, 0.2, 101)
+    one_way = jaxmr.data.Experiment.from_arrays(
+        t,
+        0.05 * t,
+        current=0.0,
+        force=500.0 + 2000.0 * 0.05 + 0.1 * np.sin(40 * t),
+        name="ramp",
+    )
+    path = tmp_path / "ramp.csv"
+    jaxmr.data.write_csv(one_way, path)
+    out = tmp_path / "p.json"
+    status, _ = _run(
+        ["fit", "--model", "bingham", "--max-steps", "2", "--out", out, path]
+    )
+    assert status == 0
+    err = capsys.readouterr().err
+    assert "no file reverses its velocity" in err
+    assert any(
+        "no file reverses" in w
+        for w in json.loads(out.read_text())["report"]["warnings"]
+    )
+    assert not fit_command._reverses(one_way)
+    assert fit_command._reverses(jaxmr.data.read_csv(files[0]))
+
+
 # ---------------------------------------------------------------------------------------
 # Files: no command writes over its inputs, an existing output is replaced only with
 # --force, and every file is written whole or not at all.
@@ -1021,7 +1133,14 @@ def test_report_says_whether_to_trust_the_fit(files, tmp_path):
     low, high = fitted_range.displacement
     assert f"| displacement | {low:.4g} | {high:.4g} | m |" in markdown
     assert "| current | 0.5 | 0.5 | A |" in markdown
-    (outside,) = [line for line in markdown.splitlines() if "spans" in line]
+    (outside,) = [
+        line
+        for line in markdown.splitlines()
+        if line.startswith("- ")
+        and "spans" in line
+        and "fitted range" in line
+        and "WARNING" not in line
+    ]
     assert outside.startswith(f"- {wider}: displacement spans")
 
 

@@ -46,10 +46,12 @@ def _no_leftovers(folder: Path):
 def test_processing_round_trip(tmp_path):
     e = _experiment()
     path = tmp_path / "e.csv"
-    jd.write_csv(e, path, comment="lab: test", smoothing=0.1 / 3, discard=np.float64(2))
+    jd.write_csv(
+        e, path, comment="lab: test", smoothing=0.1 / 3, discard=np.float64(0.1)
+    )
     text = path.read_text()
-    assert f"# smoothing: {0.1 / 3!r} s\n# discard: 2.0 s\n# lab: test\n" in text
-    assert jd.read_processing(path) == {"smoothing": 0.1 / 3, "discard": 2.0}
+    assert f"# smoothing: {0.1 / 3!r} s\n# discard: 0.1 s\n# lab: test\n" in text
+    assert jd.read_processing(path) == {"smoothing": 0.1 / 3, "discard": 0.1}
     _assert_same(e, jd.read_csv(path))  # read_csv ignores the new lines
 
     jd.write_csv(e, path, discard=0.0)
@@ -61,10 +63,10 @@ def test_processing_round_trip(tmp_path):
     # Hand-written forms: any case of the key, no space before the unit, comment lines
     # anywhere (here after the data), a repeated line that agrees.
     lines = path.read_text().splitlines()
-    lines.insert(3, "#Smoothing:0.25s")
+    lines.insert(3, "#Smoothing:0.05s")
     lines += ["# discard: 1e-1 s", "  # discard: 0.1 s"]
     path.write_text("\n".join(lines) + "\n")
-    assert jd.read_processing(path) == {"smoothing": 0.25, "discard": 0.1}
+    assert jd.read_processing(path) == {"smoothing": 0.05, "discard": 0.1}
     _assert_same(e, jd.read_csv(path))
 
 

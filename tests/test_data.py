@@ -278,8 +278,8 @@ def test_processing_travels_with_the_experiment(tmp_path):
     _assert_same(e, back)
     assert (back.smoothing, back.discard) == (0.1 / 3, 0.25)
     # An explicit argument overrides the experiment's own; 0 (none) writes no line.
-    jd.write_csv(e, path, smoothing=0.0, discard=0.5)
-    assert (jd.read_csv(path).smoothing, jd.read_csv(path).discard) == (0.0, 0.5)
+    jd.write_csv(e, path, smoothing=0.0, discard=0.2)
+    assert (jd.read_csv(path).smoothing, jd.read_csv(path).discard) == (0.0, 0.2)
     plain = jd.Experiment(t, x, v, 0.5, 300.0 * v)
     jd.write_csv(plain, path)
     assert "smoothing" not in path.read_text() and "discard" not in path.read_text()
@@ -394,6 +394,56 @@ def test_csv_reads_a_byte_order_mark_and_gzip(tmp_path):
         assert e.name == "run"
         np.testing.assert_array_equal(e.force, [1.0, 2.0, 3.0])
     assert jd.read_processing(packed) == {"smoothing": None, "discard": None}
+
+
+def test_csv_reads_what_spreadsheets_write(tmp_path):
+    """Quoted cells (`"t","x"`) and a comma ending every line (an empty last column)
+    read as the plain file; an empty name inside the header is named as such; a
+    compressed file without a `# name:` line is named after the file without
+    `.csv.gz`."""
+    import gzip
+
+    plain = tmp_path / "plain.csv"
+    plain.write_text("\n".join(["t,x,i,F", *_GOOD_ROWS]) + "\n")
+    quoted = tmp_path / "quoted.csv"
+    quoted.write_text(
+        "\n".join(
+            [
+                '"t","x","i","F"',
+                *(",".join(f'"{c}"' for c in r.split(",")) for r in _GOOD_ROWS),
+            ]
+        )
+        + "\n"
+    )
+    trailing = tmp_path / "trailing.csv"
+    trailing.write_text("\n".join(f"{r}," for r in ["t,x,i,F", *_GOOD_ROWS]) + "\n")
+    expected = jd.read_csv(plain)
+    for path in (quoted, trailing):
+        e = jd.read_csv(path)
+        for key in ("t", "x", "v", "current", "force"):
+            np.testing.assert_array_equal(getattr(e, key), getattr(expected, key))
+    empty = tmp_path / "empty.csv"
+    empty.write_text("\n".join(["t,,x,i,F", *(f"{r},0" for r in _GOOD_ROWS)]) + "\n")
+    with pytest.raises(ValueError, match="empty column name at position 2"):
+        jd.read_csv(empty)
+    packed = tmp_path / "run 7.csv.gz"
+    packed.write_bytes(gzip.compress(plain.read_bytes()))
+    assert jd.read_csv(packed).name == "run 7"
+    assert (
+        jd.experiment_name("a/b.CSV.GZ") == "b" and jd.experiment_name("c.txt") == "c"
+    )
+
+
+def test_processing_longer_than_the_record_is_refused():
+    """A discarded start past the record's end, or a moving average wider than the
+    record, is refused where the experiment is made, naming both durations."""
+    t = np.linspace(0.0, 2.0, 201)
+    arrays = (t, np.sin(t), np.cos(t), 0.0, np.cos(t))
+    jd.Experiment(*arrays, discard=2.0, smoothing=2.0)  # the whole record: allowed
+    with pytest.raises(ValueError, match=r"`discard` = 2.5 s leaves no sample of a "):
+        jd.Experiment(*arrays, discard=2.5, name="run")
+    with pytest.raises(ValueError, match=r"`smoothing` = 3 s is wider than the record"):
+        jd.Experiment(*arrays, smoothing=3.0)
 
 
 def test_csv_names_the_file_that_is_not_text(tmp_path):

@@ -134,7 +134,7 @@ def run_table(args: argparse.Namespace) -> int:
                 f"{source}: {'is a directory' if source.is_dir() else 'no such file'}"
             )
     out = Path(args.out)
-    targets = [out / f"{s.stem}.csv" for s in sources]
+    targets = [out / f"{jaxmr.data.experiment_name(s)}.csv" for s in sources]
     stems = [t.name for t in targets]
     repeated = sorted({n for n in stems if stems.count(n) > 1})
     if repeated:

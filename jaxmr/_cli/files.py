@@ -10,6 +10,7 @@ becomes a `CLIError` whose message names the file.
 
 import argparse
 import dataclasses
+import gzip
 import hashlib
 import json
 import math
@@ -171,7 +172,10 @@ def with_processing(experiments, option: str, key: str, flag: str) -> list:
     # the file was read (naming the file), would come again naming the experiment.
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", jaxmr.data.DataWarning)
-        return [dataclasses.replace(e, **{key: value}) for e in experiments]
+        try:
+            return [dataclasses.replace(e, **{key: value}) for e in experiments]
+        except ValueError as e:  # e.g. a width or start longer than a record
+            raise CLIError(f"{flag}: {e}") from e
 
 
 def load_model(path: str):
@@ -193,6 +197,84 @@ def load_model(path: str):
             "(a hysteresis model, Damper or ChannelDelay)"
         )
     return model, data
+
+
+def fitted_range(params, data: dict):
+    """The `jaxmr.FittedRange` a parameter file holds (`jaxmr fit` saves it), or None
+    for one without (an older `jaxmr fit`'s, a model saved from Python)."""
+    saved = data.get("fitted_range")
+    if saved is None:
+        return None
+    try:
+        return jaxmr.FittedRange.from_dict(saved)
+    except ValueError as e:
+        raise CLIError(f"{params}: {e}") from e
+
+
+def _device(rotary: bool, drive: str) -> str:
+    return f"{'rotary' if rotary else 'linear'} device driven by {drive}"
+
+
+def check_device(params, data: dict, paths: Sequence, experiments):
+    """Refuse files of another kind of device than the model was fitted to (a brake's
+    angle and torque against a damper's, a voltage against a current): their numbers
+    would be read in the other units, and the answer would look plausible.
+
+    **Returns:** the file's `jaxmr.FittedRange`, or None (nothing to check against).
+    """
+    fitted = fitted_range(params, data)
+    if fitted is None:
+        return None
+    for path, e in zip(paths, experiments):
+        if (e.rotary, e.drive) != (fitted.rotary, fitted.drive):
+            raise CLIError(
+                f"{path} is a {_device(e.rotary, e.drive)}, but the model of {params} "
+                f"was fitted to a {_device(fitted.rotary, fitted.drive)}: give files "
+                "of the device the model was fitted to (columns t, "
+                + ("theta" if fitted.rotary else "x")
+                + ", "
+                + ("u" if fitted.drive == "voltage" else "i")
+                + ", ...)"
+            )
+    return fitted
+
+
+def beyond_range(fitted, path, experiment) -> str | None:
+    """A sentence saying where `experiment` leaves the model's fitted range, or None
+    (within it, or no range to check against)."""
+    if fitted is None:
+        return None
+    found = fitted.exceeded(experiment.x, experiment.v, experiment.current)
+    if not found:
+        return None
+    return (
+        f"{path} lies beyond the range the model was fitted on: "
+        + "; ".join(found)
+        + ". The model's force there is extrapolation."
+    )
+
+
+def predicted_by_jaxmr(path) -> bool:
+    """Whether a canonical CSV's force (torque) column is a prediction that `jaxmr
+    predict` wrote (its `# F: predicted by jaxmr` comment line, above the header),
+    not a measurement."""
+    try:
+        with open(path, "rb") as raw:
+            compressed = raw.read(2) == b"\x1f\x8b"
+        opener = gzip.open if compressed else open
+        with opener(path, "rt", encoding="utf-8-sig", errors="replace") as lines:
+            for line in lines:
+                text = line.strip()
+                if text and not text.startswith("#"):
+                    return False  # the header: the comments above it only
+                key, _, value = text[1:].partition(":")
+                if key.strip() in ("F", "T") and value.strip().startswith(
+                    "predicted by jaxmr"
+                ):
+                    return True
+    except (OSError, EOFError):
+        return False
+    return False
 
 
 BAND_LEVEL_HELP = (

@@ -16,6 +16,7 @@ import sys
 import tempfile
 import threading
 import time
+import warnings
 from collections.abc import Callable
 from pathlib import Path
 
@@ -31,6 +32,7 @@ from .files import (
     file_digest,
     plan_outputs,
     read_experiments,
+    same_file,
     units,
     with_processing,
     write_atomically,
@@ -185,6 +187,11 @@ def run(args: argparse.Namespace) -> int:
         options = {"max_steps": args.max_steps}
         if args.starts > 1:
             options["starts"] = args.starts
+            print(
+                f"starts per fit: {args.starts} (the data-scaled guess and "
+                f"{args.starts - 1} random one(s); the lowest loss is kept)",
+                flush=True,
+            )
         # The steps' progress (`log.step`, counted by `interrupts`), and the event
         # that a Ctrl-C sets to stop the fit with its best model so far.
         options["progress"] = interrupts.progress(log.step)
@@ -201,11 +208,12 @@ def run(args: argparse.Namespace) -> int:
         # From here on a Ctrl-C is deferred: the model is reported and written first.
         interrupts.finishing = True
         elapsed = time.perf_counter() - start
-        warnings = list(getattr(args, "warnings", []))
+        warned = list(getattr(args, "warnings", []))
         report = _fit_report(
-            name, args.files, experiments, result, elapsed, selection, warnings
+            name, args.files, experiments, result, elapsed, selection, warned
         )
-        _print_summary(name, result, elapsed)
+        report["settings"] = {"max_steps": args.max_steps, "starts": args.starts}
+        _print_summary(name, result, elapsed, selection is not None)
         # Where the model was fitted, saved beside it (`jaxmr.load_model` gives it back).
         fitted_range = jaxmr.FittedRange.from_experiments(experiments)
         if _save_model(
@@ -249,6 +257,30 @@ def _check_options(args: argparse.Namespace) -> None:
     finalists = 1 if args.finalists is None else args.finalists
     if args.max_steps < 1 or args.starts < 1 or finalists < 1:
         raise CLIError("--max-steps, --starts and --finalists must be at least 1")
+    if args.model != AUTO:
+        # Said rather than ignored: the user meant them to change something.
+        given = [
+            flag
+            for flag, value in (
+                ("--candidates", args.candidates),
+                ("--holdout", args.holdout),
+                ("--finalists", args.finalists),
+            )
+            if value is not None
+        ]
+        if given:
+            raise CLIError(
+                f"{', '.join(given)}: only with --model {AUTO} (it chooses among "
+                f"candidates); --model {args.model} fits that model alone"
+            )
+    for k, path in enumerate(args.files):
+        for other in args.files[:k]:
+            if same_file(path, other):
+                raise CLIError(
+                    f"{path} is given twice (as {other}): each file would count "
+                    "twice in the fit and its standard errors shrink as if it held "
+                    "twice the data"
+                )
 
 
 def _read(args: argparse.Namespace) -> list:
@@ -278,7 +310,25 @@ def _read(args: argparse.Namespace) -> list:
             f"  {path}: {len(e)} samples, {e.duration:g} s, {level} {input_unit}{extra}",
             flush=True,
         )
+    if not any(_reverses(e) for e in experiments):
+        # A constant-speed test is fine among others (a brake's torque against
+        # current at several speeds), but with no reversal anywhere a hysteresis
+        # model's state and loop are not seen at all.
+        warnings.warn(
+            "no file reverses its velocity (each moves one way only): the fit sees "
+            "no hysteresis loop, so a hysteretic model's parameters are guesses; fit "
+            "records of whole cycles",
+            UserWarning,
+            stacklevel=2,
+        )
     return experiments
+
+
+def _reverses(experiment) -> bool:
+    """Whether the velocity changes sign (beyond 1 % of its largest size)."""
+    v = np.asarray(experiment.v, dtype=float)
+    floor = 0.01 * float(np.max(np.abs(v)))
+    return bool(np.any(v > floor) and np.any(v < -floor))
 
 
 def _fit_model(args, experiments: list, options: dict, log: "_FitLog"):
@@ -392,10 +442,12 @@ def _select(args, experiments: list, options: dict, log: "_FitLog"):
     return selection
 
 
-def _print_summary(name: str, result, elapsed: float) -> None:
+def _print_summary(name: str, result, elapsed: float, selected: bool) -> None:
     """`FitResult`'s own summary (its verdict in the words of `FitResult.outcome`,
-    which the report records too)."""
-    print(f"\n{name}: {elapsed:.1f} s")
+    which the report records too), after the command's time: the whole selection's
+    when `selected` (`auto`)."""
+    what = "selected and fitted in" if selected else "fitted in"
+    print(f"\n{name}: {what} {elapsed:.1f} s")
     print(result)
 
 

@@ -15,9 +15,12 @@ from .files import (
     BAND_LEVEL_HELP,
     FORCE_HELP,
     band_level,
+    beyond_range,
+    check_device,
     check_writable_file,
     load_model,
     plan_outputs,
+    predicted_by_jaxmr,
     prediction_bands,
     read_experiments,
     units,
@@ -88,6 +91,10 @@ def run(args: argparse.Namespace) -> int:
     read = read_experiments([args.file], need_force=False, why="")
     read = with_processing(read, args.smoothing, "smoothing", "--smoothing")
     (experiment,) = with_processing(read, args.discard, "discard", "--discard")
+    fitted = check_device(args.params, data, [args.file], [experiment])
+    beyond = beyond_range(fitted, args.file, experiment)
+    if beyond is not None:
+        warnings.warn(beyond, UserWarning, stacklevel=2)
     # Through the experiment's own smoothing (`Experiment.smoothing`).
     (predicted,) = jaxmr.predict_all(model, [experiment])
     if not np.all(np.isfinite(predicted)):
@@ -124,7 +131,17 @@ def run(args: argparse.Namespace) -> int:
             f"the model's {'torque' if experiment.rotary else 'force'} lies, not the "
             "measurement"
         )
+    if beyond is not None:
+        comment += f"\nwarning: {beyond}"
     if experiment.force is not None:
+        if predicted_by_jaxmr(args.file):
+            warnings.warn(
+                f"the {load} column of {args.file} was predicted by jaxmr "
+                f"(its '# {load}:' line), not measured: the printed error compares two "
+                "predictions",
+                UserWarning,
+                stacklevel=2,
+            )
         print(_prediction_error(args.file, experiment, predicted), flush=True)
     write_atomically(
         out,

@@ -5,6 +5,7 @@ import argparse
 import csv
 import dataclasses
 import math
+import sys
 import warnings
 from collections.abc import Sequence
 from pathlib import Path
@@ -20,9 +21,13 @@ from .files import (
     BAND_LEVEL_HELP,
     FORCE_HELP,
     band_level,
+    beyond_range,
+    check_device,
     file_digest,
+    fitted_range,
     load_model,
     plan_outputs,
+    predicted_by_jaxmr,
     prediction_bands,
     prepare_directory,
     read_experiments,
@@ -83,7 +88,7 @@ def add_parser(subparsers) -> None:
 def _figure_names(paths: Sequence[str]) -> list[str]:
     names, used = [], set()
     for path in paths:
-        stem, k = Path(path).stem, 1
+        stem, k = jaxmr.data.experiment_name(path), 1
         name = f"{stem}.png"
         while name in used or name in ("report.png",):
             k += 1
@@ -159,6 +164,22 @@ def run(args: argparse.Namespace) -> int:
     experiments = read_experiments(
         args.files, need_force=True, why="the comparison with the model"
     )
+    fitted = check_device(args.params, data, args.files, experiments)
+    for path, e in zip(args.files, experiments):
+        beyond = beyond_range(fitted, path, e)
+        if beyond is not None:
+            # Said here as the command's warnings are; the report's own section on
+            # the fitted range lists it (not again among its warnings).
+            print(f"jaxmr report: warning: {beyond}", file=sys.stderr, flush=True)
+        if predicted_by_jaxmr(path):
+            load = "T" if e.rotary else "F"
+            warnings.warn(
+                f"the {load} column of {path} was predicted by jaxmr (its "
+                f"'# {load}:' line), not measured: the report compares the model "
+                "with a prediction",
+                UserWarning,
+                stacklevel=2,
+            )
     out = Path(args.out)
     if out.exists() and not out.is_dir():
         raise CLIError(f"the output path {str(out)!r} exists and is not a directory")
@@ -321,18 +342,14 @@ def _units_caption(experiment, force_unit: str) -> list[str]:
 def _range_markdown(params, data: dict, files, experiments) -> list[str]:
     """The operating range the model was fitted on (`jaxmr.FittedRange`, saved by
     `jaxmr fit`), and the files of this report that leave it."""
-    saved = data.get("fitted_range")
-    if saved is None:
+    fitted = fitted_range(params, data)
+    if fitted is None:
         return [
             "## Fitted operating range",
             "",
             f"Unknown: {params} holds no fitted range (written by an older `jaxmr "
             "fit`, or by `jaxmr.save_model` without `fitted_range`).",
         ]
-    try:
-        fitted = jaxmr.FittedRange.from_dict(saved)
-    except ValueError as e:
-        raise CLIError(f"{params}: {e}") from e
     units = fitted.units()
     names = {
         "displacement": "angle" if fitted.rotary else "displacement",

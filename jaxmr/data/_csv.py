@@ -14,7 +14,9 @@ t,x,v,i,F
 
 Lines starting with `#` are comments (anywhere); blank lines are skipped. The first
 other line is the header naming the columns, comma-separated; every following line is
-one sample with one number per column. Columns (names are case-sensitive):
+one sample with one number per column. As spreadsheets write them, a cell may be in
+double quotes (`"t","x"`), and a comma may end every line (an empty last column).
+Columns (names are case-sensitive):
 
 - `t` [s], required, strictly increasing;
 - linear damper: `x` [m] (required), `v` [m/s] (optional: computed from `x` by central
@@ -137,6 +139,12 @@ def _check_header(names: list[str], where: str) -> None:
             f"{where}: repeated column names {duplicates} in the header ({found}); name "
             "each column once."
         )
+    if "" in names:
+        raise ValueError(
+            f"{where}: the header ({found}) has an empty column name at position "
+            f"{names.index('') + 1}: two commas in a row, or one at the start of the "
+            "line; name every column."
+        )
     unknown = [n for n in names if n not in _KNOWN]
     if unknown:
         hints = []
@@ -178,6 +186,23 @@ def _check_header(names: list[str], where: str) -> None:
 
 
 _GZIP_MAGIC = b"\x1f\x8b"
+
+
+def experiment_name(path: str | os.PathLike) -> str:
+    """The name an experiment read from `path` gets without a `# name:` line: the
+    file's name without its extension, and without `.gz` first for a compressed file
+    (`run.csv.gz` → `run`)."""
+    path = Path(path)
+    if path.suffix.lower() == ".gz":
+        path = path.with_suffix("")
+    return path.stem
+
+
+def _unquoted(cell: str) -> str:
+    """A cell without the double quotes that CSV writers may put around it."""
+    if len(cell) >= 2 and cell[0] == cell[-1] == '"':
+        return cell[1:-1].strip()
+    return cell
 
 
 def _lines(path: Path):
@@ -235,6 +260,7 @@ def read_csv(path: str | os.PathLike) -> Experiment:
     metadata: dict[str, str] = {}
     header: list[str] | None = None
     header_line = 0
+    trailing = False
     rows: list[list[float]] = []
     lines: list[int] = []
     processing: dict[str, float | None] = dict.fromkeys(_PROCESSING)
@@ -256,12 +282,18 @@ def read_csv(path: str | os.PathLike) -> Experiment:
                 metadata.setdefault(key.strip().lower(), value.strip())
             _processing_line(processing, at, path, number, text)
             continue
-        cells = [c.strip() for c in text.split(",")]
+        cells = [_unquoted(c.strip()) for c in text.split(",")]
         if header is None:
             _separator_hint(text, where)
             header, header_line = cells, number
+            # A spreadsheet's trailing comma: an empty last column, on every line.
+            trailing = len(header) > 1 and header[-1] == ""
+            if trailing:
+                header = header[:-1]
             _check_header(header, where)
             continue
+        if trailing and len(cells) == len(header) + 1 and cells[-1] == "":
+            cells = cells[:-1]
         if len(cells) != len(header):
             raise ValueError(
                 f"{where}: line {number} has {len(cells)} cells but the header "
@@ -292,7 +324,7 @@ def read_csv(path: str | os.PathLike) -> Experiment:
     input_name = "i" if "i" in columns else "u"
     t, position = columns["t"], columns[roles["position"]]
     current, force = columns[input_name], columns.get(roles["force"])
-    name = metadata.get("name") or path.stem
+    name = metadata.get("name") or experiment_name(path)
     drive = _INPUTS[input_name]
     seconds = {k: 0.0 if v is None else v for k, v in processing.items()}
     # Warnings of implausible units name the file (and point at the user's line that

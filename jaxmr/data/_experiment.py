@@ -121,8 +121,10 @@ _SOURCE: contextvars.ContextVar[str | None] = contextvars.ContextVar(
 
 
 # False while an experiment is cut from one already checked (`Experiment.window`): its
-# units were warned about once, with the whole record.
-_WARN_UNITS: contextvars.ContextVar[bool] = contextvars.ContextVar(
+# units were warned about once, with the whole record, and its processing checked
+# against the whole record's length (a cut may be shorter than a discarded start,
+# which then discards all of it).
+_WHOLE_RECORD: contextvars.ContextVar[bool] = contextvars.ContextVar(
     "jaxmr_experiment_warn_units", default=True
 )
 
@@ -532,8 +534,24 @@ class Experiment(eqx.Module):
             return  # built under jit from traced arrays: nothing to check by value
         columns = self._columns()
         check_columns(columns, self._where())
-        if not _WARN_UNITS.get():
+        if not _WHOLE_RECORD.get():
             return
+        t = columns["t"]
+        duration = float(t[-1] - t[0]) if t.size else 0.0
+        # Both would only fail later, deep inside a fit or prediction (a discard past
+        # the end leaves nothing to score; a moving average wider than the record
+        # flattens the model's force, an NRMSE of 1 whatever the parameters).
+        if self.discard > duration:
+            raise ValueError(
+                f"{self._where()}: `discard` = {self.discard:g} s leaves no sample of "
+                f"a record {duration:g} s long."
+            )
+        if self.smoothing > duration:
+            raise ValueError(
+                f"{self._where()}: `smoothing` = {self.smoothing:g} s is wider than "
+                f"the record ({duration:g} s): a moving average that wide flattens "
+                "the force. Give the width of the filter the force went through, or 0."
+            )
         warn_implausible_units(
             *(columns[k] for k in ("t", "x", "v", "current")),
             columns.get("force"),  # pyright: ignore[reportCallIssue]  # four columns before it
@@ -666,7 +684,7 @@ class Experiment(eqx.Module):
             keep &= t <= end
         kept = t[keep]
         discard = max(0.0, float(t[0] + self.discard - kept[0])) if kept.size else 0.0
-        token = _WARN_UNITS.set(False)
+        token = _WHOLE_RECORD.set(False)
         try:
             return Experiment(
                 self.t[keep],
@@ -682,4 +700,4 @@ class Experiment(eqx.Module):
                 discard=discard,
             )
         finally:
-            _WARN_UNITS.reset(token)
+            _WHOLE_RECORD.reset(token)

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ._csv import _lines, _suggest
+from ._csv import _lines, _suggest, experiment_name
 from ._experiment import Experiment, check_columns, named_by_file
 
 # Per column, its units as written after the colon and the factor to the SI unit that
@@ -210,7 +210,9 @@ def read_table(
         if value is not None
     ]
     if len(inputs) + len(given) != 1:
-        found = inputs + [f"{k}=" for k in given]
+        found = [f"column `{n}`" for n in inputs] + [
+            f"`{k}` = {current if k == 'current' else voltage!r}" for k in given
+        ]
         raise ValueError(
             f"{where}: give exactly one input: a column `i` [A] or `u` [V], or a "
             f"constant `current` [A] or `voltage` [V]; got "
@@ -276,6 +278,10 @@ def read_table(
     else:
         drive = given[0]
         level = float(current if drive == "current" else voltage)  # pyright: ignore[reportArgumentType]
+        if not math.isfinite(level):
+            raise ValueError(
+                f"{where}: the constant `{drive}` must be a finite number, got {level!r}."
+            )
     with named_by_file(path):  # the warnings name the file
         return Experiment.from_arrays(
             table["t"],
@@ -283,7 +289,7 @@ def read_table(
             v=table.get(velocity),
             current=level,
             force=table.get(load),
-            name=path.stem if name is None else name,
+            name=experiment_name(path) if name is None else name,
             rotary=rotary,
             drive=drive,
             smoothing=smoothing,
