@@ -1,9 +1,11 @@
 """Figures of merit of a simulated or measured loop."""
 
 import jax.numpy as jnp
+import numpy as np
 
 from ._custom_types import ArrayLike, Float
 from ._metrics import dissipated_energy
+from ._misc import is_concrete
 from ._solution import Solution
 
 
@@ -29,6 +31,19 @@ def energy_per_cycle(
             "energy_per_cycle needs the solution's ts, force and velocity: pass them "
             "in `sweep(..., keep=)`."
         )
+    if is_concrete(period, ts):
+        # A frequency passed for the period, or a period longer than the record,
+        # would integrate some other stretch and still return a plausible energy.
+        p = np.asarray(period, dtype=float)
+        span = float(np.min(np.asarray(ts)[..., -1] - np.asarray(ts)[..., 0]))
+        if not np.all(np.isfinite(p) & (p > 0)):
+            raise ValueError(f"`period` must be > 0 [s], got {period!r}.")
+        if np.max(p) > span * (1 + 1e-9):
+            raise ValueError(
+                f"`period` = {np.max(p):g} s is longer than the solution "
+                f"({span:g} s): give the excitation period 1/f [s], and a solution "
+                "that spans at least one whole period."
+            )
     t_end = ts[..., -1:]
     period = jnp.asarray(period)[..., None]
     inside = ts >= t_end - period - 1e-9 * period

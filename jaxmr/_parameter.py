@@ -105,6 +105,18 @@ def unwrap(tree):
     )
 
 
+def numbers_as_arrays(tree):
+    """`tree` with its plain Python floats as arrays, as a model's constructor makes
+    them: a parameter set with `equinox.tree_at` (which bypasses the constructor)
+    stays a float, and a fit would leave it out without a word. Ints and bools are
+    left as they are (counts and flags, not parameters)."""
+    return jax.tree.map(
+        lambda x: as_float_array(x) if type(x) is float else x,
+        tree,
+        is_leaf=lambda x: isinstance(x, Fixed),
+    )
+
+
 def free_filter(tree):
     """A filter spec: True for the array leaves a fit varies (not those in `Fixed`)."""
 
@@ -131,6 +143,7 @@ def fit_only(model, where):
         chosen = where(m)
         return tuple(chosen) if isinstance(chosen, (tuple, list)) else (chosen,)
 
+    model = numbers_as_arrays(model)
     spec = jax.tree.map(lambda _: False, model, is_leaf=is_parameter)
     count = len(select(model))
     spec = eqx.tree_at(select, spec, replace=(True,) * count)
@@ -138,10 +151,14 @@ def fit_only(model, where):
     def wrap(free, sub):
         if free:
             return sub
-        return jax.tree.map(
-            lambda x: Fixed(x) if eqx.is_inexact_array(x) else x,
-            sub,
-            is_leaf=is_parameter,
-        )
+
+        def fix(x):
+            # A constrained parameter (`Positive`, `Bounded`) is fixed at its value:
+            # left as it was, a fit had varied it.
+            if isinstance(x, AbstractParameter) and not isinstance(x, Fixed):
+                return Fixed(x.value())  # pyright: ignore[reportArgumentType]  # an array: `Fixed` is excluded above
+            return Fixed(x) if eqx.is_inexact_array(x) else x
+
+        return jax.tree.map(fix, sub, is_leaf=is_parameter)
 
     return jax.tree.map(wrap, spec, model, is_leaf=lambda x: isinstance(x, bool))

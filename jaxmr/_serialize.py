@@ -248,6 +248,22 @@ def save_model(
             "`fitted_range` must be a jaxmr.FittedRange, got "
             f"{type(fitted_range).__name__}."
         )
+    # Refused here rather than written into a file that `load_model` cannot read.
+    cls = type(model)
+    if not isinstance(model, eqx.Module):
+        raise TypeError(
+            f"`model` must be a jaxmr model (an equinox Module), got {cls.__name__}."
+        )
+    if cls.__module__.startswith("jaxmr.") and cls.__name__ not in _registry():
+        hint = (
+            ": an experiment is data, written by jaxmr.data.write_csv"
+            if cls.__name__ == "Experiment"
+            else ""
+        )
+        raise TypeError(
+            f"`model` is of type {cls.__name__}, which `load_model` cannot read "
+            f"back{hint}."
+        )
     if fitted_range is None:
         fitted_range = fitted_range_in(model)
     data = model_to_dict(model)

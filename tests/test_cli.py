@@ -188,6 +188,19 @@ def test_energy_axis_starts_at_zero():
     ax.figure.clf()
 
 
+def test_energy_of_a_sweep_over_devices_is_one_line_per_device():
+    """Rows are devices, columns currents: one line per device against the currents
+    (matplotlib alone draws the columns of a 2-D y, the wrong axis); a count that
+    does not match the currents is named."""
+    energies = np.array([[0.1, 0.2, 0.25], [0.3, 0.5, 0.6]])
+    ax = jaxmr.plot.energy_vs_current([0.0, 0.5, 1.0], energies)
+    lines = [line.get_ydata().tolist() for line in ax.get_lines()]
+    assert lines == energies.tolist()
+    ax.figure.clf()
+    with pytest.raises(ValueError, match="one value per current"):
+        jaxmr.plot.energy_vs_current([0.0, 1.0], energies)
+
+
 def test_loop_legend_outside_the_axes():
     solution = jaxmr.sweep(
         jaxmr.sas_brake_dahl(),
@@ -316,3 +329,32 @@ def test_cli_imports_no_private_jaxmr_module():
     assert found - KNOWN_PRIVATE_IMPORTS == set()
     assert KNOWN_PRIVATE_IMPORTS - found == set(), "no longer imported: drop it"
     assert {p.name for p in sources} >= {"files.py", "fit.py", "design.py"}
+
+
+def test_plots_name_the_wrong_object():
+    """The plots take different objects (a Solution, an Experiment and a force, a
+    PredictionBand): given another, the error names the argument and what to give
+    (it had been an AttributeError from inside the drawing), and one label given as
+    a string is not read as one label per character."""
+    import jaxmr.data
+
+    t = np.linspace(0.0, 1.0, 50)
+    run = jaxmr.data.Experiment.from_arrays(
+        t, 0.01 * np.sin(6 * t), force=np.cos(6 * t)
+    )
+    with pytest.raises(
+        TypeError, match="`solution` must be a Solution .* got Experiment"
+    ):
+        jaxmr.plot.loop(run)
+    with pytest.raises(TypeError, match="`experiment` must be a jaxmr.data.Experiment"):
+        jaxmr.plot.measured_vs_predicted(np.cos(6 * t), run)
+    with pytest.raises(TypeError, match="`band` must be a jaxmr.PredictionBand"):
+        jaxmr.plot.prediction_band(run)
+    solution = jaxmr.simulate(
+        jaxmr.Dahl(k_x=1.0, k_w=10.0, rho=100.0), jaxmr.Sine(0.01, 1.0), 0.0, t
+    )
+    with pytest.raises(TypeError, match="one label per run"):
+        jaxmr.plot.loop(solution, labels="abc")
+    ax = jaxmr.plot.loop(solution, labels=["abc"])
+    assert [text.get_text() for text in ax.get_legend().get_texts()] == ["abc"]
+    ax.figure.clf()

@@ -369,7 +369,8 @@ def test_csv_rejects_bad_files(tmp_path, header, rows, match):
 
 
 @pytest.mark.parametrize(
-    "separator, name", [(";", "semicolons"), ("\t", "tabs"), ("|", "bars")]
+    "separator, name",
+    [(";", "semicolons"), ("\t", "tabs"), ("|", "bars"), (" ", "spaces")],
 )
 def test_csv_names_another_separator(tmp_path, separator, name):
     path = tmp_path / "sep.csv"
@@ -444,6 +445,18 @@ def test_processing_longer_than_the_record_is_refused():
         jd.Experiment(*arrays, discard=2.5, name="run")
     with pytest.raises(ValueError, match=r"`smoothing` = 3 s is wider than the record"):
         jd.Experiment(*arrays, smoothing=3.0)
+
+
+def test_experiment_names_a_missing_velocity_and_an_empty_window():
+    """`v=None` points to `from_arrays`; a window past the record names the times it
+    was given and the record's span (it had said only "got 0")."""
+    t = np.linspace(0.0, 1.0, 50)
+    e = jd.Experiment.from_arrays(t, 0.01 * np.sin(6 * t), name="run")
+    with pytest.raises(ValueError, match=r"window\(5.0, 6.0\) keeps 0 sample\(s\) of "):
+        e.window(5.0, 6.0)
+    # The suite's type checker may refuse None first, naming the parameter.
+    with pytest.raises(TypeError, match=r"Experiment.from_arrays|parameter 'v'"):
+        jd.Experiment(t, np.asarray(e.x), None)  # pyright: ignore[reportArgumentType]
 
 
 def test_csv_names_the_file_that_is_not_text(tmp_path):

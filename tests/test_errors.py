@@ -20,6 +20,9 @@ import numpy as np
 import pytest
 
 import jaxmr
+import jaxmr.data
+import jaxmr.metrics
+import jaxmr.scores
 
 MOTION = jaxmr.Sine(0.01, 2.0)  # 10 mm, 2 Hz: peak velocity 0.126 m/s
 TS = jnp.linspace(0.0, 0.5, 11)
@@ -556,3 +559,32 @@ def test_bouc_wen_may_soften_without_bound():
     """beta + gamma <= 0 is a valid (unbounded) Bouc-Wen: the benchmark oscillator's."""
     model = bouc_wen(beta=-1100.0, gamma=800.0, n=1.0)
     assert float(model.state_bounds()[0]) == float("inf")
+
+
+def test_scores_models_and_metrics_name_a_wrong_call(tmp_path):
+    """Mistakes that had been answered with a plausible number or an unreadable
+    file: forces of two shapes (NumPy broadcast (n,) against (n, 1) and scored the
+    (n, n) table), something other than a model saved, a frequency given for the
+    period, and one road given to `evaluate` without its batch axis."""
+    a = np.linspace(0.0, 1.0, 50)
+    with pytest.raises(ValueError, match=r"one shape .* got \(50,\) and \(50, 1\)"):
+        jaxmr.scores.nrmse(a, a[:, None])
+    with pytest.raises(ValueError, match="one shape"):
+        jaxmr.scores.rmse(a, a[:, None])
+    assert jaxmr.scores.nrmse(a, a) == 0.0
+    with pytest.raises(TypeError, match=names("model")):  # jaxmr's or the checker's
+        jaxmr.save_model({"a": 1}, tmp_path / "m.json")  # pyright: ignore[reportArgumentType]
+    run = jaxmr.data.Experiment.from_arrays(a, 0.01 * np.sin(6 * a))
+    with pytest.raises(TypeError, match="Experiment, which `load_model` cannot read"):
+        jaxmr.save_model(run, tmp_path / "e.json")
+    assert not any(tmp_path.iterdir())
+    ts = jnp.linspace(0.0, 1.0, 101)
+    sol = jaxmr.simulate(bouc_wen(), MOTION, 0.0, ts, integrator=FIXED)
+    assert float(jaxmr.metrics.energy_per_cycle(sol, 0.5)) > 0  # 2 Hz: 1 cycle
+    for period, match in ((2.0, r"longer than the solution \(1 s\)"), (0.0, "> 0")):
+        with pytest.raises(ValueError, match=match):
+            jaxmr.metrics.energy_per_cycle(sol, period)
+    road = jaxmr.iso8608_road("C", 20.0, 1.0, jax.random.key(0))
+    car = jaxmr.spencer_quarter_car(jaxmr.passenger_car_mr_damper())
+    with pytest.raises(ValueError, match="this looks like one road"):
+        jaxmr.evaluate(car, jaxmr.Skyhook(2000.0, 2.0), road, 1.0)

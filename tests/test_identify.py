@@ -3,6 +3,7 @@ acceptance case) and the identifiability report."""
 
 from types import SimpleNamespace
 
+import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -272,3 +273,64 @@ def test_one_current_cannot_identify_a_current_law(synthetic):
     _, experiments = synthetic
     with pytest.raises(ValueError, match="same current"):
         jaxmr.fit(_guess(fix_A=True), experiments[:1], progress=False)
+
+
+def test_a_parameter_set_with_tree_at_is_fitted():
+    """`equinox.tree_at` bypasses a model's constructor, so a parameter set with it
+    stays a Python float: `fit` and `fit_only` still fit it (it had been left out
+    without a word, and `fit_only` of it said every parameter was Fixed); `fit_only`
+    fixes the others, `Positive` ones included (they had stayed free)."""
+    runs = dahl_runs((5.0,), (3.0,), samples=61, substeps=2)
+    edited = eqx.tree_at(lambda m: m.k_w, dahl_guess(), 2.0)
+    assert type(edited.k_w) is float
+    result = jaxmr.fit(edited, runs, max_steps=30, progress=False)
+    assert ".k_w" in result.names
+    # 1 % noise on one cycle: k_w within 5 % of the truth (its error about 0.3 %).
+    assert abs(result.values[result.names.index(".k_w")] - 3.0) < 0.15
+    only = jaxmr.fit_only(edited, lambda m: m.k_w)
+    assert jaxmr.fit(only, runs, max_steps=2, progress=False).names == (".k_w",)
+
+
+def test_fit_names_a_wrong_call_before_compiling():
+    """One experiment without its list, and a step budget below 1, are refused at the
+    call, naming what to give. (The suite's type checker refuses the lone experiment
+    first, naming the parameter `experiments`; without it jaxmr's message says to
+    give a list.)"""
+    (run,) = dahl_runs((5.0,), (3.0,), samples=61, substeps=2)
+    lone = r"one experiment; give a list of them|parameter 'experiments'"
+    with pytest.raises(TypeError, match=lone):
+        jaxmr.fit(dahl_guess(), run)
+    with pytest.raises(TypeError, match=lone):
+        jaxmr.predict_all(dahl_guess(), run)
+    with pytest.raises(ValueError, match=r"`max_steps` must be at least 1, got 0"):
+        jaxmr.fit(dahl_guess(), [run], max_steps=0)
+    with pytest.raises(
+        TypeError, match=r"`patience` must be an integer|parameter .patience."
+    ):
+        jaxmr.fit_each(dahl_guess(), [run], patience=2.5)  # pyright: ignore[reportArgumentType]
+    forceless = SimpleNamespace(**{**vars(run), "force": None})
+    with pytest.raises(ValueError, match="has no measured force to score"):
+        jaxmr.record_nrmse(dahl_guess(), [forceless])
+
+
+def test_a_fit_that_breaks_its_models_constraints_says_so():
+    """A plain parameter is fitted without bounds: on data that ask for it (a force
+    that falls with the velocity) the fitted dashpot goes negative, a model that its
+    simulations refuse. `fit` warns, naming the constraint; the template, whose
+    parameters are `Positive`, stays inside and warns nothing."""
+    import jaxmr.data
+    import jaxmr.templates
+
+    t = np.linspace(0.0, 1.0, 201)
+    w = 2 * np.pi
+    v = 0.01 * w * np.cos(w * t)
+    force = 300 * np.tanh(v / 0.01) - 500 * v
+    run = jaxmr.data.Experiment(t, 0.01 * np.sin(w * t), v, 0.0, force, name="run")
+    plain = jaxmr.Bingham(100.0, 500.0, velocity_scale=jaxmr.Fixed(0.01))
+    with pytest.warns(UserWarning, match=r"breaks its own constraints: Bingham: the "):
+        result = jaxmr.fit(plain, [run], max_steps=20, progress=False)
+    assert result.values[1] < 0  # c0
+    template = jaxmr.templates.MODEL_TEMPLATES["bingham"]([run])
+    jaxmr.fit(
+        template, [run], max_steps=20, progress=False
+    )  # no warning (an error here)

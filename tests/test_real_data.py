@@ -68,6 +68,13 @@ def test_moving_average():
     np.testing.assert_allclose(moving_average(3 * t, t, width)[inside], 3 * t[inside])
     assert moving_average(3 * t, t, width)[0] == pytest.approx(3 * width / 4)
     np.testing.assert_array_equal(moving_average(t, t, 0.0), t)
+    # A width in samples given for seconds (5 for 5 ms), a negative one, or arrays
+    # that do not match: named, not a flat line or the values unchanged.
+    for bad, match in ((5.0, "wider than the record"), (-0.1, ">= 0")):
+        with pytest.raises(ValueError, match=match):
+            moving_average(t, t, bad)
+    with pytest.raises(ValueError, match="one length"):
+        moving_average(t[:-1], t, width)
 
 
 def test_published_utfsm_model_reproduces_its_baseline(utfsm):

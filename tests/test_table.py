@@ -387,3 +387,12 @@ def test_a_reversed_force_is_refused_and_a_minus_unit_negates_it(
 def test_only_motion_and_force_columns_take_a_minus_sign(files):
     with pytest.raises(ValueError, match=r"column 't' cannot be negated"):
         jaxmr.data.read_table(files[1][0], "t:-s,x:mm,v:mm/s,F:kN", current=0.0)
+
+
+def test_read_table_names_a_list_given_for_its_constant_input(tmp_path):
+    """One table, one constant input: a list (as the command line's `--current 0,1`
+    for several tables) is named, not a failed float() conversion."""
+    path = tmp_path / "run.txt"
+    path.write_text("0 1\n0.1 2\n0.2 3\n", encoding="utf-8")
+    with pytest.raises(TypeError, match=r"must be one number|parameter 'current'"):
+        jaxmr.data.read_table(path, "t,x", current=[0.5])  # pyright: ignore[reportArgumentType]

@@ -22,7 +22,7 @@ from .._channel import ChannelDelay
 from .._damper import Damper
 from .._hysteresis import AbstractHysteresis
 from .._integrate import FixedStep
-from .data import StepPolicy, as_step_policy, pack
+from .data import StepPolicy, as_step_policy, experiment_list, pack
 from .residual import residuals
 from .result import FitResult, jacobian_matrix
 
@@ -154,7 +154,7 @@ def prediction_band_from_covariance(
             "unbounded: fix them (jaxmr.Fixed) and refit."
         )
     free, static, order = _named_leaves(model, names)
-    experiments = list(experiments)
+    experiments = experiment_list(experiments)
     if not experiments:
         return []
     # Every sample scored (`discard=0`): the band covers the discarded start as well,

@@ -221,6 +221,17 @@ class FitData(eqx.Module):
         return mask
 
 
+def experiment_list(experiments, name: str = "experiments") -> list:
+    """`experiments` as a list, refusing one experiment given alone (`list()` of it
+    fails with "object is not iterable", which does not say what to do)."""
+    if hasattr(experiments, "t") and hasattr(experiments, "x"):
+        raise TypeError(
+            f"`{name}` is one experiment; give a list of them, e.g. [experiment] "
+            "(`jaxmr.predict` takes one)."
+        )
+    return list(experiments)
+
+
 def per_experiment(
     value, experiments: Sequence, what: str, item: str = "experiment"
 ) -> np.ndarray:
@@ -353,7 +364,7 @@ def pack(
 
     **Returns:** a `FitData`.
     """
-    experiments = list(experiments)
+    experiments = experiment_list(experiments)
     if not experiments:
         raise ValueError("`experiments` is empty: give at least one experiment.")
     if weighting not in ("nrmse", "force"):

@@ -2,6 +2,7 @@
 squares — the entry points that tie the stages together (data → residual → solver →
 result)."""
 
+import warnings
 from collections.abc import Callable, Sequence
 
 import equinox as eqx
@@ -17,11 +18,12 @@ from .._distribute import batch_mesh, gather, replicate, spread, to_host
 from .._hysteresis import AbstractHysteresis
 from .._integrate import FixedStep
 from .._misc import warn_if_float32
-from .._parameter import free_filter
+from .._parameter import free_filter, numbers_as_arrays
 from .data import (
     FitData,
     StepPolicy,
     as_step_policy,
+    experiment_list,
     pack,
     pad_all,
     per_experiment,
@@ -38,6 +40,7 @@ from .residual import (
 from .result import FitResult, assemble, kept_groups, statistics, statistics_from
 from .solver import (
     FastLevenbergMarquardt,
+    check_budget,
     column_mesh,
     column_scale,
     divide,
@@ -147,6 +150,7 @@ def _split_model(model):
             "`model` must be a jaxmr hysteresis model, Damper or ChannelDelay (its "
             f"values the initial guess), got {type(model).__name__}."
         )
+    model = numbers_as_arrays(model)
     free, static = eqx.partition(model, free_filter(model))
     if not jax.tree.leaves(free):
         raise ValueError("nothing to fit: every parameter of `model` is Fixed.")
@@ -163,6 +167,36 @@ def _lanes_on_devices(data: FitData) -> FitData:
         return data
     where = lambda d: (d.inputs, d.step, d.reset)
     return eqx.tree_at(where, data, spread(where(data), mesh))
+
+
+def warn_broken_constraints(model, experiments) -> list[str]:
+    """Warn (and return the messages) where a fitted model breaks its own physical
+    constraints (a negative dashpot, ...) over the inputs of `experiments`: a plain
+    parameter is fitted without bounds, and on poor data it can leave them; its
+    simulations (`simulate`, `load_model`) would then refuse the model."""
+    device = model.model if isinstance(model, ChannelDelay) else model
+    hysteresis = device.hysteresis if isinstance(device, Damper) else device
+    if not isinstance(hysteresis, AbstractHysteresis) or not experiments:
+        return []
+    inputs = np.concatenate(
+        [np.ravel(np.asarray(e.current, float)) for e in experiments]
+    )
+    with jax.ensure_compile_time_eval():
+        checks = hysteresis.checks_over(
+            jnp.asarray(inputs.min()), jnp.asarray(inputs.max())
+        )
+        broken = [c.message() for c in checks if not bool(np.all(np.asarray(c.ok)))]
+    if broken:
+        warnings.warn(
+            "the fitted model breaks its own constraints: "
+            + "; ".join(m.rstrip(".") for m in broken)
+            + ". Its simulations will refuse it: constrain those parameters "
+            "(jaxmr.Positive, jaxmr.Bounded), as jaxmr.templates does, or check the "
+            "data.",
+            UserWarning,
+            stacklevel=3,
+        )
+    return broken
 
 
 def _report(free, static, data, outcome, stats_data, threshold, residuals_fn):
@@ -285,11 +319,12 @@ def fit(
     **Returns:** a `FitResult`.
     """
     warn_if_float32("jaxmr.fit")
+    check_budget(max_steps, patience)
     # A start read from a file holds the range of the data it was fitted on, not
     # of these: the fitted model holds none (`with_fitted_range` gives it one).
-    model = with_fitted_range(model, None)
+    model = numbers_as_arrays(with_fitted_range(model, None))
     free, static = _split_model(model)
-    experiments = list(experiments)
+    experiments = experiment_list(experiments)
     policy = as_step_policy(integrator)
     options = dict(
         weighting=weighting, discard=discard, smoothing=smoothing, lanes=lanes
@@ -322,7 +357,7 @@ def fit(
         if starts is None or isinstance(starts, int):
             ys = jax.tree.map(lambda a: a[None], free)
         else:
-            models = [with_fitted_range(m, None) for m in starts]
+            models = [numbers_as_arrays(with_fitted_range(m, None)) for m in starts]
             frees = [eqx.filter(m, free_filter(m)) for m in models]
             ys = jax.tree.map(lambda *xs: jnp.stack(xs), *frees)
         fit_residuals, unscaled = _fit_residuals(_starts_inside(ys, static, data))
@@ -358,7 +393,7 @@ def fit(
         else data
     )
     stats_data = _lanes_on_devices(stats_data)
-    return _report(
+    result = _report(
         unscaled_member(best_y, scale, best),
         static,
         data,
@@ -371,6 +406,8 @@ def fit(
         # anew, so they are not guarded.
         residuals if refine else unscaled,
     )
+    warn_broken_constraints(result.model, experiments)
+    return result
 
 
 # `fit_each` runs its problems this many at a time (`solver.iterate`'s `chunk`): the
@@ -427,7 +464,8 @@ def fit_each(
     **Returns:** one `FitResult` per experiment, in order.
     """
     warn_if_float32("jaxmr.fit_each")
-    experiments = list(experiments)
+    check_budget(max_steps, patience)
+    experiments = experiment_list(experiments)
     if not experiments:
         raise ValueError("`experiments` is empty: give at least one experiment.")
     own_starts = None
@@ -446,6 +484,7 @@ def fit_each(
                 "class, laws and Fixed parameters), differing only in values."
             )
         model = model[0]
+    model = numbers_as_arrays(model)
     free, static = _split_model(model)
     policy = as_step_policy(integrator)
     n = len(experiments)

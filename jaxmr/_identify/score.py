@@ -11,7 +11,14 @@ import numpy as np
 
 from .._damper import with_fitted_range
 from .._integrate import FixedStep
-from .data import StepPolicy, as_step_policy, pack, per_experiment, window
+from .data import (
+    StepPolicy,
+    as_step_policy,
+    experiment_list,
+    pack,
+    per_experiment,
+    window,
+)
 from .residual import simulate_jit
 
 
@@ -46,7 +53,7 @@ def predict_all(
     (`state_bounds`, e.g. Dahl's |z| <= 1, with 1 % slack), where a fixed-step solve
     would go on to give finite but absurd forces.
     """
-    experiments = list(experiments)
+    experiments = experiment_list(experiments)
     if not experiments:
         return []
     data = pack(
@@ -75,11 +82,23 @@ def predict(
     ]
 
 
+def _same_shape(simulated, measured) -> tuple[np.ndarray, np.ndarray]:
+    """Both as float arrays of one shape: NumPy would broadcast (n,) against (n, 1)
+    to an (n, n) table and score it without a word."""
+    simulated, measured = np.asarray(simulated, float), np.asarray(measured, float)
+    if simulated.shape != measured.shape:
+        raise ValueError(
+            f"the simulated and measured forces must have one shape (one value per "
+            f"sample), got {simulated.shape} and {measured.shape}."
+        )
+    return simulated, measured
+
+
 def nrmse(simulated, measured, keep=None, *, remove_mean: bool = False) -> float:
     """RMSE/std(F) [1] over the samples `keep` (a boolean mask; all when `None`); with
     `remove_mean` both signals lose their means over those samples first. `inf` for a
     prediction that is not finite or a measured force that does not vary."""
-    simulated, measured = np.asarray(simulated, float), np.asarray(measured, float)
+    simulated, measured = _same_shape(simulated, measured)
     if keep is not None:
         simulated, measured = simulated[keep], measured[keep]
     if not np.all(np.isfinite(simulated)):
@@ -94,7 +113,7 @@ def nrmse(simulated, measured, keep=None, *, remove_mean: bool = False) -> float
 
 def rmse(simulated, measured, keep=None) -> float:
     """RMSE [force unit] over the samples `keep`; `inf` if not finite."""
-    simulated, measured = np.asarray(simulated, float), np.asarray(measured, float)
+    simulated, measured = _same_shape(simulated, measured)
     if keep is not None:
         simulated, measured = simulated[keep], measured[keep]
     if not np.all(np.isfinite(simulated)):
@@ -142,7 +161,13 @@ def record_nrmse(
 
     **Returns:** one NRMSE per record.
     """
-    experiments = list(experiments)
+    experiments = experiment_list(experiments)
+    for e in experiments:
+        if getattr(e, "force", None) is None:
+            raise ValueError(
+                f"experiment {getattr(e, 'name', '')!r} has no measured force to score "
+                "the model against."
+            )
     forces = predict_all(model, experiments, integrator=integrator, smoothing=smoothing)
     masks = scored_samples(experiments, discard, until)
     return np.array(
@@ -159,7 +184,21 @@ def moving_average(values, t, width: float) -> np.ndarray:
     The trapezoidal integral read at the window's ends (the same window as `fit`'s
     `smoothing`)."""
     values, t = np.asarray(values, float), np.asarray(t, float)
-    if not width > 0:
+    if not (np.isfinite(width) and width >= 0):
+        raise ValueError(
+            f"`width` must be a finite number of seconds >= 0, got {width!r}."
+        )
+    if values.shape != t.shape or t.ndim != 1:
+        raise ValueError(
+            f"`values` and `t` must be 1-D of one length, got {values.shape} and {t.shape}."
+        )
+    if width > t[-1] - t[0]:
+        # A width in samples given for seconds: the average of (nearly) everything.
+        raise ValueError(
+            f"`width` = {width:g} s is wider than the record ({t[-1] - t[0]:g} s): give "
+            "the width in seconds."
+        )
+    if width == 0:
         return values
     integral = np.concatenate(
         [[0.0], np.cumsum((values[1:] + values[:-1]) / 2 * np.diff(t))]

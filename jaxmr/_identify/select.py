@@ -15,7 +15,7 @@ from typing import Any
 import equinox as eqx
 import numpy as np
 
-from .data import per_experiment
+from .data import experiment_list, per_experiment
 from .fitting import fit
 from .result import FitResult, StopReason
 from .score import nrmse, predict_all, rmse
@@ -459,7 +459,7 @@ def compare_models(
 
     **Returns:** the `ModelScore`s, best (lowest median held-out NRMSE) first.
     """
-    train, test = list(train), list(test)
+    train, test = experiment_list(train, "train"), experiment_list(test, "test")
     if not train:
         raise ValueError("`train` is empty: give the experiments to fit on.")
     if not test:
@@ -757,7 +757,7 @@ def cv_folds(experiments: Sequence) -> list[Fold]:
 
     **Returns:** the folds (`Fold`s), the first being `holdout_split`'s.
     """
-    experiments = list(experiments)
+    experiments = experiment_list(experiments)
     n = len(experiments)
     names = [str(getattr(e, "name", "")) for e in experiments]
     levels = [float(np.mean(np.asarray(e.current))) for e in experiments]
@@ -799,7 +799,7 @@ def cv_folds(experiments: Sequence) -> list[Fold]:
 def fold_data(experiments: Sequence, fold: Fold):
     """`(train, test, score_from)` of `fold` (`score_from`: `None`, or the split
     times [s] of a time fold, for `compare_models`)."""
-    experiments = list(experiments)
+    experiments = experiment_list(experiments)
     if fold.fraction is None:
         train = [experiments[k] for k in fold.train]
         return train, [experiments[k] for k in fold.test], None
@@ -827,7 +827,7 @@ def holdout_split(experiments: Sequence, *, indices: bool = False):
     `indices=True` also the positions in `experiments` of the training and held-out
     experiments.
     """
-    experiments = list(experiments)
+    experiments = experiment_list(experiments)
     fold = cv_folds(experiments)[0]
     train, test, score_from = fold_data(experiments, fold)
     if indices:
@@ -1071,7 +1071,7 @@ def select_model(
 
     **Raises:** `RuntimeError` when every candidate failed.
     """
-    train = list(train)
+    train = experiment_list(train)
     if test is None:
         if score_from is not None:
             raise ValueError("`score_from` needs `test`: give both or neither.")

@@ -29,7 +29,7 @@ from .._custom_types import Array, Float
 from .._damper import with_fitted_range
 from .._integrate import FixedStep
 from .._misc import as_float_array, is_concrete, to_device
-from .._parameter import free_filter, unwrap
+from .._parameter import free_filter, numbers_as_arrays, unwrap
 from .._signal import AbstractSignal, _is_uniform, as_signal
 from .._systems.base import AbstractSystem
 from .data import per_experiment
@@ -37,6 +37,7 @@ from .fitting import warn_if_float32
 from .result import FitResult, assemble, statistics
 from .solver import (
     FastLevenbergMarquardt,
+    check_budget,
     column_mesh,
     iterate,
     multiply,
@@ -365,6 +366,7 @@ def fit_system(
     `nrmse` = rmse/std of the measured output, `experiment_names` the records' names).
     """
     warn_if_float32("jaxmr.fit_system")
+    check_budget(max_steps, patience)
     if not isinstance(system, AbstractSystem):
         raise TypeError(
             "`system` must be a jaxmr system (SingleDegreeOfFreedom, QuarterCar, ...), "
@@ -395,6 +397,7 @@ def fit_system(
     if not isinstance(substeps, int) or substeps < 1:
         raise ValueError(f"`substeps` must be a positive integer, got {substeps!r}.")
     data = _stack_records(records, system, dt, discard)
+    system = numbers_as_arrays(system)
     free, static = eqx.partition(system, free_filter(system))
     if not jax.tree.leaves(free):
         raise ValueError("nothing to fit: every parameter of `system` is Fixed.")

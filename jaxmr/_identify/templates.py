@@ -52,7 +52,7 @@ from .._hysteresis import (
     Spencer,
 )
 from .._parameter import Bounded, Fixed, Positive
-from .data import StepPolicy
+from .data import StepPolicy, experiment_list
 
 # Candidates for the displacement over which the hysteretic state saturates, as
 # fractions of the smallest displacement amplitude (MR fluids yield within a fraction
@@ -132,7 +132,7 @@ def data_scales(experiments: Sequence) -> DataScales:
 
     **Returns:** a `DataScales`.
     """
-    experiments = list(experiments)
+    experiments = experiment_list(experiments)
     if not experiments:
         raise ValueError("`experiments` is empty: give at least one experiment.")
     columns = [_columns(e) for e in experiments]

@@ -16,7 +16,7 @@ from .._control.smooth import with_temperature
 from .._distribute import to_host
 from .._integrate import FixedStep
 from .._systems.base import AbstractSystem
-from .batch import ROADS_EXAMPLE, batch_size, road_batch
+from .batch import batch_size, road_batch, road_count
 from .loss import Setup, losses, sensing
 from .result import TuneResult
 from .space import as_space, as_tuple_where, from_values, initial_values, to_values
@@ -32,7 +32,7 @@ def check_inputs(system, controller, roads, samples) -> int:
         raise TypeError(
             f"`controller` must be a jaxmr controller, got {type(controller).__name__}."
         )
-    runs = batch_size(roads, "roads", ROADS_EXAMPLE)
+    runs = road_count(roads)
     if samples is not None:
         if not isinstance(samples, AbstractSystem):
             raise TypeError(
@@ -113,7 +113,7 @@ def choose_integrator(
     if not chosen:
         return integrator
     system, controller = pair
-    n = batch_size(roads, "roads", ROADS_EXAMPLE)
+    n = road_count(roads)
     systems = [("", system)]
     if samples is not None:
         count = batch_size(samples, "samples", "`FitResult.sample(...)` (in a system)")

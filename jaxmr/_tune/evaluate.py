@@ -22,7 +22,7 @@ from .._distribute import batch_mesh, pad, padded_size, spread, to_host
 from .._integrate import FixedStep
 from .._solution import RESULTS
 from .._systems.base import AbstractSystem
-from .batch import ROADS_EXAMPLE, batch_size
+from .batch import road_count
 from .common import chooses_steps, own_sampling, sensor_noise
 from .loss import comfort, sensing
 
@@ -61,7 +61,7 @@ def evaluate(
     # The roads, each with its index (its noise), spread over every device of every
     # process (padded to a whole number per device); every process gets every
     # road's values.
-    n = batch_size(roads, "roads", ROADS_EXAMPLE)
+    n = road_count(roads)
     mesh = batch_mesh()
     runs = spread(pad((roads, jnp.arange(n)), n, padded_size(n, mesh)), mesh)
 

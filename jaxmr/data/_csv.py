@@ -229,12 +229,18 @@ def _separator_hint(text: str, where: str) -> None:
     """A header with one cell that other separators would split: say which."""
     if "," in text:
         return
-    for separator, name in ((";", "semicolons"), ("\t", "tabs"), ("|", "bars")):
-        if separator in text:
+    for separator, name in (
+        (";", "semicolons"),
+        ("\t", "tabs"),
+        ("|", "bars"),
+        (" ", "spaces"),
+    ):
+        if separator in text.strip():
+            sep = r"\s+" if separator == " " else separator
             raise ValueError(
                 f"{where}: the header {text!r} is separated by {name}; jaxmr CSV is "
                 "comma-separated with '.' as the decimal point (e.g. "
-                f"pandas.read_csv(path, sep={separator!r}, decimal=',').to_csv(new, "
+                f"pandas.read_csv(path, sep={sep!r}, decimal=',').to_csv(new, "
                 "index=False) converts it)."
             )
 

@@ -508,6 +508,11 @@ class Experiment(eqx.Module):
             )
         if not isinstance(name, str) or not isinstance(velocity_source, str):
             raise TypeError("`name` and `velocity_source` must be strings.")
+        if v is None:
+            raise TypeError(
+                "`v` is None: give the velocity, or let Experiment.from_arrays(t, x, "
+                "...) compute it from the displacement."
+            )
         self.t = as_column(t)
         self.x = as_column(x)
         self.v = as_column(v)
@@ -683,7 +688,13 @@ class Experiment(eqx.Module):
         if end is not None:
             keep &= t <= end
         kept = t[keep]
-        discard = max(0.0, float(t[0] + self.discard - kept[0])) if kept.size else 0.0
+        if kept.size < 3:
+            raise ValueError(
+                f"Experiment.window({start!r}, {end!r}) keeps {kept.size} sample(s) of "
+                f"{self._where()}, which spans [{t[0]:g}, {t[-1]:g}] s; a window needs "
+                "at least 3 (the times are absolute, not from the record's start)."
+            )
+        discard = max(0.0, float(t[0] + self.discard - kept[0]))
         token = _WHOLE_RECORD.set(False)
         try:
             return Experiment(

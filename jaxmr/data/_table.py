@@ -277,7 +277,14 @@ def read_table(
         level = table[inputs[0]]
     else:
         drive = given[0]
-        level = float(current if drive == "current" else voltage)  # pyright: ignore[reportArgumentType]
+        value = current if drive == "current" else voltage
+        try:
+            level = float(value)  # pyright: ignore[reportArgumentType]
+        except (TypeError, ValueError):
+            raise TypeError(
+                f"{where}: `{drive}` must be one number (the table's constant input), "
+                f"got {value!r}; for several tables call read_table once per table."
+            ) from None
         if not math.isfinite(level):
             raise ValueError(
                 f"{where}: the constant `{drive}` must be a finite number, got {level!r}."

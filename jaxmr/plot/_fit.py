@@ -4,7 +4,7 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from ._loops import _UNITS, _pyplot
+from ._loops import _UNITS, _pyplot, expect
 
 _AGAINST = ("displacement", "velocity", "time")
 
@@ -49,6 +49,13 @@ def measured_vs_predicted(
     """
     if against not in _AGAINST:
         raise ValueError(f"`against` must be one of {list(_AGAINST)}, got {against!r}.")
+    expect(
+        experiment,
+        ("t", {"displacement": "x", "velocity": "v"}.get(against, "t")),
+        "experiment",
+        "a jaxmr.data.Experiment (then the predicted force, e.g. "
+        "jaxmr.predict(model, experiment))",
+    )
     units = _default_units(experiment, units)
     t = np.asarray(experiment.t)
     predicted = np.asarray(predicted_force)
@@ -144,6 +151,12 @@ def prediction_band(
 
     **Returns:** the Axes.
     """
+    expect(
+        band,
+        ("t", "force", "lower", "upper"),
+        "band",
+        "a jaxmr.PredictionBand (jaxmr.prediction_band(result, experiments))",
+    )
     if experiment is None:
         if against != "time":
             raise ValueError(

@@ -21,6 +21,20 @@ def _pyplot():
     return plt
 
 
+LOOP_HINT = (
+    "a Solution from jaxmr.simulate or jaxmr.sweep; for a measured experiment draw "
+    "jaxmr.plot.measured_vs_predicted(experiment, predicted_force)"
+)
+
+
+def expect(value, attributes: Sequence[str], name: str, what: str) -> None:
+    """A clear `TypeError` when `value` lacks what a plot reads from it (an
+    `AttributeError` deep in the drawing named neither the argument nor the fix)."""
+    missing = [a for a in attributes if not hasattr(value, a)]
+    if missing:
+        raise TypeError(f"`{name}` must be {what}; got {type(value).__name__}.")
+
+
 def loop(
     solution,
     against: str = "displacement",
@@ -54,6 +68,12 @@ def loop(
         raise ValueError(f"`against` must be one of {sorted(_AXES)}, got {against!r}.")
     if units not in _UNITS:
         raise ValueError(f"`units` must be one of {sorted(_UNITS)}, got {units!r}.")
+    expect(solution, ("ts", "force", "displacement"), "solution", LOOP_HINT)
+    if isinstance(labels, str):
+        raise TypeError(
+            f"`labels` must be one label per run (a list of strings), got the string "
+            f"{labels!r}; for one run give [{labels!r}]."
+        )
     plt = _pyplot()
     if ax is None:
         _, ax = plt.subplots(figsize=(5, 4), layout="constrained")
@@ -141,13 +161,33 @@ def energy_vs_current(
     true scale, not magnified by an axis that starts near the smallest value (the SAS
     brake's 9 % from 0 to 1 A would fill the figure).
 
+    **Arguments:**
+
+    - `currents`: the inputs, one per point (the axis's values, in `current_unit`).
+    - `energies`: [J], one per current, or one row per device of a sweep over
+      devices and currents (its last axis the currents).
+    - `ax`, `label`: the Axes to draw on (default: a new figure), the legend's text.
+    - `current_unit`: the unit `currents` are in, for the axis label only (e.g.
+      `"V"` for a device driven by voltage).
+
     **Returns:** the Axes.
     """
     plt = _pyplot()
+    currents, energies = np.asarray(currents), np.asarray(energies)
+    if currents.ndim != 1 or energies.ndim not in (1, 2):
+        raise ValueError(
+            "`currents` must be 1-D and `energies` 1-D or 2-D (one row per device), "
+            f"got shapes {currents.shape} and {energies.shape}."
+        )
+    if energies.shape[-1] != currents.size:
+        raise ValueError(
+            f"`energies` must have one value per current along its last axis: "
+            f"{currents.size} currents, energies of shape {energies.shape}."
+        )
     if ax is None:
         _, ax = plt.subplots(figsize=(5, 4), layout="constrained")
-    energies = np.asarray(energies)
-    ax.plot(np.asarray(currents), energies, "o-", label=label)
+    # matplotlib draws the columns of a 2-D y: the rows (devices) are the lines here.
+    ax.plot(currents, energies.T, "o-", label=label)
     ax.set_xlabel(f"Current [{current_unit}]")
     ax.set_ylabel("Energy dissipated per cycle [J]")
     if np.all(energies >= 0):
