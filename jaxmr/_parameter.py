@@ -156,8 +156,9 @@ def fit_only(model, where):
             # A constrained parameter (`Positive`, `Bounded`) is fixed at its value:
             # left as it was, a fit had varied it.
             if isinstance(x, AbstractParameter) and not isinstance(x, Fixed):
-                return Fixed(x.value())  # pyright: ignore[reportArgumentType]  # an array: `Fixed` is excluded above
-            return Fixed(x) if eqx.is_inexact_array(x) else x
+                return Fixed(x.value())
+            # An array here (pyright narrows `x` to `Fixed` after the test above).
+            return Fixed(x) if eqx.is_inexact_array(x) else x  # pyright: ignore[reportArgumentType]
 
         return jax.tree.map(fix, sub, is_leaf=is_parameter)
 
