@@ -21,6 +21,34 @@ from ._misc import as_float_array, default_float, is_concrete
 TWO_PI = 2 * math.pi  # a Python float: weakly typed under strict promotion
 
 # ---------------------------------------------------------------------------------------
+# Arguments
+
+
+def _samples(x, name: str) -> Array:
+    """`x` as a float array with at least one sample on its last axis. A metric of no
+    samples is no number (NumPy's mean gives NaN, its max an error, a sum 0), and a
+    solution passed for one of its signals is named, not "setting an array element
+    with a sequence"."""
+    if isinstance(x, eqx.Module):
+        raise TypeError(
+            f"`{name}` must be an array of samples, got a {type(x).__name__}: pass "
+            "one of its signals (e.g. `sol.current`, `sol.body_acceleration`)."
+        )
+    x = as_float_array(x)
+    if x.ndim == 0 or x.shape[-1] == 0:
+        raise ValueError(
+            f"`{name}` must have at least one sample on its last axis, got shape "
+            f"{x.shape}."
+        )
+    return x
+
+
+def _positive_step(dt) -> None:
+    if is_concrete(dt) and not bool(np.all(np.asarray(dt) > 0)):
+        raise ValueError(f"`dt` must be > 0 s (the sampling interval), got {dt!r}.")
+
+
+# ---------------------------------------------------------------------------------------
 # Small guarded roots
 
 
@@ -40,13 +68,13 @@ def rms(x: Float[ArrayLike, "*batch samples"]) -> Float[Array, "*batch"]:
 
     - `x`: uniformly sampled values; leading axes are kept.
     """
-    x = as_float_array(x)
+    x = _samples(x, "x")
     return _safe_root(jnp.mean(x**2, axis=-1), 2)
 
 
 def peak(x: Float[ArrayLike, "*batch samples"]) -> Float[Array, "*batch"]:
     r"""Peak magnitude $\max_k |x_k|$ over the last axis, in the unit of $x$."""
-    return jnp.max(jnp.abs(as_float_array(x)), axis=-1)
+    return jnp.max(jnp.abs(_samples(x, "x")), axis=-1)
 
 
 def crest_factor(x: Float[ArrayLike, "*batch samples"]) -> Float[Array, "*batch"]:
@@ -65,13 +93,13 @@ def mean_current(current: Float[ArrayLike, "*batch samples"]) -> Float[Array, "*
     r"""Mean commanded current $\tfrac{1}{N}\sum_k i_k$ [A] over uniformly sampled
     commands (control effort; proportional to the mean coil voltage of a resistive
     coil)."""
-    return jnp.mean(as_float_array(current), axis=-1)
+    return jnp.mean(_samples(current, "current"), axis=-1)
 
 
 def rms_current(current: Float[ArrayLike, "*batch samples"]) -> Float[Array, "*batch"]:
     r"""RMS current $\sqrt{\tfrac{1}{N}\sum_k i_k^2}$ [A] over uniformly sampled
     commands: $R\,i_{rms}^2$ is the coil's mean Joule power [W]."""
-    return rms(current)
+    return rms(_samples(current, "current"))
 
 
 def dissipated_energy(
@@ -129,7 +157,15 @@ def settling_time(
 
     **Returns:** the settling time [s], or `inf`.
     """
-    t, y, tolerance, final = map(as_float_array, (t, y, tolerance, final))
+    t, y = _samples(t, "t"), _samples(y, "y")
+    tolerance, final = as_float_array(tolerance), as_float_array(final)
+    if t.ndim != 1 or t.shape[0] != y.shape[-1]:
+        raise ValueError(
+            f"`t` must be 1-D with one time per sample of `y` (its last axis), got "
+            f"shapes {t.shape} and {y.shape}."
+        )
+    if is_concrete(tolerance) and not bool(jnp.all(tolerance > 0)):
+        raise ValueError(f"`tolerance` must be > 0, got {tolerance}.")
     return _settling_time(t, y, tolerance, final, interpolate)
 
 
@@ -352,8 +388,9 @@ def wk_weighted(
 
     **Returns:** $a_w$ [m/s²], the shape of `a`.
     """
+    _positive_step(dt)
     phi, gamma, c = _wk_discrete(dt if is_concrete(dt) else as_float_array(dt))
-    return _wk_weighted(as_float_array(a), phi, gamma, c)
+    return _wk_weighted(_samples(a, "a"), phi, gamma, c)
 
 
 @eqx.filter_jit
@@ -400,5 +437,6 @@ def vdv(
     - `weighted`: apply the Wk weighting first (default, the ISO definition); `False`
       takes `a` as already weighted (or wants the unweighted dose).
     """
-    a = wk_weighted(a, dt) if weighted else as_float_array(a)
+    _positive_step(dt)
+    a = wk_weighted(a, dt) if weighted else _samples(a, "a")
     return _safe_root(as_float_array(dt) * jnp.sum(a**4, axis=-1), 4)

@@ -499,6 +499,11 @@ def iso8608_road(
     **Returns:** a `RandomRoad` of heights [m] (and velocities [m/s] for `"sinusoids"`).
     """
     where = "iso8608_road"
+    if not isinstance(key, jax.Array):
+        raise TypeError(
+            f"{where}: `key` must be a JAX random key, e.g. jax.random.key(0) (a batch "
+            f"of roads: jax.vmap over jax.random.split(key, n)), got {type(key).__name__}."
+        )
     if method not in ("sinusoids", "white_noise"):
         raise ValueError(
             f"{where}: `method` must be 'sinusoids' or 'white_noise', got {method!r}."

@@ -244,6 +244,11 @@ def test_arguments_are_checked(menu):
         jaxmr.design_experiments(
             truth(), menu, 2, discard=[0.1] * 12, already=[menu[0]]
         )
+    # At -1 A the linear laws turn negative: a test the model cannot run is named,
+    # not planned (`jaxmr design` had planned it).
+    reversed_current = jaxmr.sine_grid(**(MENU | dict(currents=(-1.0, 1.0))))
+    with pytest.raises(ValueError, match="breaks its own constraints at the inputs"):
+        jaxmr.design_experiments(truth(), reversed_current, 2)
 
 
 def _run(argv):

@@ -521,6 +521,15 @@ def test_an_export_never_replaces_a_file_unless_forced(tmp_path, skyhook):
     assert header.name == "controller.h"
     with pytest.raises(FileExistsError):
         jaxmr.export_stablehlo(skyhook, header)
+    # A file where the folder goes, or a folder where a file goes: named, and even
+    # with force nothing is written (the pair whole or not at all).
+    with pytest.raises(NotADirectoryError, match="is a file, not a folder"):
+        jaxmr.export_c(skyhook, source, force=True)
+    other = tmp_path / "other"
+    (other / "controller.c").mkdir(parents=True)
+    with pytest.raises(IsADirectoryError, match="is a folder"):
+        jaxmr.export_c(skyhook, other, force=True)
+    assert not (other / "controller.h").exists()
 
 
 class _Viscous(jaxmr.AbstractHysteresis):

@@ -4,7 +4,10 @@ factor, settling time, dissipated energy, current effort."""
 import jax
 import jax.numpy as jnp
 import numpy as np
+import pytest
 
+import jaxmr
+import jaxmr.metrics
 from jaxmr._metrics import (
     crest_factor,
     dissipated_energy,
@@ -181,3 +184,27 @@ def test_energy_and_current():
     current = np.array([0.0, 1.0, 1.0, 0.0])
     assert float(mean_current(current)) == 0.5
     np.testing.assert_allclose(float(rms_current(current)), np.sqrt(0.5), rtol=1e-15)
+
+
+def test_metrics_name_a_wrong_call():
+    """No samples, `t` and `y` of different lengths, a tolerance or sampling interval
+    that is not positive, and a solution passed for one of its signals: each named
+    (they had returned NaN, 0, inf or a wrong time, or failed inside NumPy)."""
+    t = np.linspace(0.0, 1.0, 11)
+    y = np.exp(-5 * t)
+    assert float(jaxmr.metrics.settling_time(t, y, 0.05)) == pytest.approx(0.6)
+    # The suite's type checker binds the `samples` axis of both, and refuses first.
+    with pytest.raises((ValueError, TypeError), match="one time per sample|parameter"):
+        jaxmr.metrics.settling_time(t[:5], y, 0.05)
+    with pytest.raises(ValueError, match="`tolerance` must be > 0"):
+        jaxmr.metrics.settling_time(t, y, -1.0)
+    for metric in (jaxmr.metrics.rms, jaxmr.metrics.peak, jaxmr.metrics.mean_current):
+        with pytest.raises(ValueError, match="at least one sample"):
+            metric(np.zeros(0))
+    for dt in (0.0, -1e-3):
+        with pytest.raises(ValueError, match="`dt` must be > 0"):
+            jaxmr.metrics.wk_rms(np.ones(10), dt)
+        with pytest.raises(ValueError, match="`dt` must be > 0"):
+            jaxmr.metrics.vdv(np.ones(10), dt)
+    with pytest.raises(TypeError, match="pass one of its signals|parameter 'current'"):
+        jaxmr.metrics.mean_current(jaxmr.Sine(0.01, 1.0))  # pyright: ignore[reportArgumentType]

@@ -383,12 +383,47 @@ def test_bad_tuning_input():
         (dict(temperature=(0.01, 0.1)), "annealed `temperature`"),
         (dict(learning_rate=-0.1), "`learning_rate` must be > 0"),
         (dict(check_every=0), "`check_every` must be a positive integer"),
+        (dict(patience=0), "`patience` must be a positive integer"),
     ],
 )
 def test_bad_schedules_are_named(settings, message):
     # Refused before anything is simulated (no compilation).
     with pytest.raises(ValueError, match=message):
         tune(CAR, FAR, TRAIN, T, parameters=c_sky, steps=2, progress=False, **settings)
+
+
+@pytest.mark.parametrize(
+    "search, settings, message",
+    [
+        ("cma_es", dict(sigma=0.0), "`sigma` must be > 0"),
+        ("cma_es", dict(population=0), "`population` must be an integer >= 2"),
+        # The start (2 roads) and one generation of 4 need 10 simulations.
+        ("cma_es", dict(population=4, simulations=8), "the start and one generation"),
+        ("random_search", dict(spread=0.5), "factor in log space, so it must be > 1"),
+        ("random_search", dict(population=0), "`population` must be an integer >= 1"),
+    ],
+)
+def test_bad_search_settings_are_named(search, settings, message):
+    """Settings a search had taken without a word (a step size of 0 searched
+    nothing, a population of 0 fell back to the default or divided by zero, a budget
+    with no room for a generation returned the start): refused, before compiling
+    anything but the start's bookkeeping."""
+    call = {"cma_es": cma_es, "random_search": random_search}[search]
+    options = dict(parameters=c_sky, simulations=40) | settings
+    with pytest.raises(ValueError, match=message):
+        call(CAR, FAR, TRAIN, T, **options)
+
+
+def test_a_current_schedule_checks_its_arguments():
+    """As every law does: the top current, the logits and the sample time (a
+    negative `i_max` had surfaced as the damper's negative yield force)."""
+    for args, match in (
+        ((jnp.zeros(10), -1.0), "`i_max` must be > 0"),
+        ((jnp.zeros(0), 1.0), "`logits` must be a 1-D array of at least one"),
+        ((jnp.zeros(10), 1.0, 0.0), "`dt` must be > 0"),
+    ):
+        with pytest.raises(ValueError, match=match):
+            jaxmr.CurrentSchedule(*args)
 
 
 def _scaled(f):

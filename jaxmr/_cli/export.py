@@ -58,7 +58,11 @@ def run(args: argparse.Namespace) -> int:
     try:
         controller = jaxmr.load_model(source)
     except (OSError, ValueError, TypeError, KeyError) as e:
-        raise CLIError(f"{source}: {e}") from e
+        # `load_model`'s messages name the file already.
+        message = str(e)
+        raise CLIError(
+            message if str(source) in message else f"{source}: {message}"
+        ) from e
     if not isinstance(controller, jaxmr.ObserverBasedController):
         raise CLIError(
             f"{source}: holds a {type(controller).__name__}; export takes a "

@@ -1,11 +1,13 @@
 """An open-loop current schedule: the ceiling a causal law is measured against."""
 
+import math
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 
 from .._custom_types import Array, Float
-from .._misc import as_float_array
+from .._misc import as_float_array, check_concrete
 from .base import AbstractController
 
 
@@ -28,6 +30,23 @@ class CurrentSchedule(AbstractController):
     logits: Float[Array, " samples"] = eqx.field(converter=as_float_array)
     i_max: Float[Array, ""] = eqx.field(converter=as_float_array)
     dt: float = eqx.field(static=True, default=1e-3)
+
+    def __check_init__(self):
+        check_concrete(
+            self.i_max > 0,
+            "CurrentSchedule: `i_max` must be > 0 A (the top of the current range), "
+            f"got {self.i_max}.",
+            self.i_max,
+        )
+        if self.logits.ndim != 1 or self.logits.shape[0] == 0:
+            raise ValueError(
+                "CurrentSchedule: `logits` must be a 1-D array of at least one value "
+                f"(one per controller sample), got shape {self.logits.shape}."
+            )
+        if not (
+            isinstance(self.dt, (int, float)) and math.isfinite(self.dt) and self.dt > 0
+        ):
+            raise ValueError(f"CurrentSchedule: `dt` must be > 0 s, got {self.dt!r}.")
 
     @classmethod
     def constant(cls, current, samples: int, i_max, dt: float = 1e-3):

@@ -378,7 +378,7 @@ def realistic_sensors(system, *, load_cell: bool = False) -> Sensors:
         raise TypeError(
             "realistic_sensors knows the QuarterCar, SingleDegreeOfFreedom and SASRig; "
             f"for a {type(system).__name__}, build a jaxmr.Sensors({{name: "
-            "jaxmr.Sensor(...)}}) of what it measures."
+            "jaxmr.Sensor(...)}) of what it measures."
         )
     if load_cell:
         sensors["damper_force"] = force

@@ -14,6 +14,18 @@ def write_outputs(
     given) into `folder` (made if missing). Without `force` an existing file is a
     `FileExistsError` before anything is written."""
     paths = [folder / name for name in files]
+    if folder.exists() and not folder.is_dir():
+        raise NotADirectoryError(
+            f"export: {folder} is a file, not a folder: give the folder to write "
+            f"{', '.join(files)} into."
+        )
+    # Checked for every file before any is written, so that a pair is written whole
+    # or not at all.
+    taken = [str(p) for p in paths if p.is_dir()]
+    if taken:
+        raise IsADirectoryError(
+            f"export: {', '.join(taken)} is a folder; the export writes a file there."
+        )
     if not force:
         existing = [str(p) for p in paths if p.exists()]
         if existing:

@@ -41,7 +41,7 @@ from .._misc import warn_if_float32
 from .._signal import AbstractSignal, Sine
 from ..data._experiment import Experiment
 from .data import StepPolicy, as_step_policy, pack, pad_all, per_experiment
-from .fitting import _split_model
+from .fitting import _split_model, broken_constraints
 from .residual import DIVERGED, residuals
 from .result import (
     FitResult,
@@ -582,6 +582,16 @@ def design_experiments(
         )
     if weighting not in ("nrmse", "force"):
         raise ValueError(f"`weighting` must be 'nrmse' or 'force', got {weighting!r}.")
+    # A test the model cannot run (a current law negative there) would be planned,
+    # its information computed from an unphysical model.
+    broken = broken_constraints(model, candidates + already)
+    if broken:
+        raise ValueError(
+            "the model breaks its own constraints at the inputs of the tests: "
+            + "; ".join(broken)
+            + ". Give tests within the inputs the model holds for (e.g. currents >= "
+            "0), or a model valid there."
+        )
     if not (math.isfinite(noise) and noise > 0):
         raise ValueError(f"`noise` must be > 0, got {noise}.")
     if batch_size is not None and (not isinstance(batch_size, int) or batch_size < 1):

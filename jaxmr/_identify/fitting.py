@@ -18,7 +18,7 @@ from .._distribute import batch_mesh, gather, replicate, spread, to_host
 from .._hysteresis import AbstractHysteresis
 from .._integrate import FixedStep
 from .._misc import warn_if_float32
-from .._parameter import free_filter, numbers_as_arrays
+from .._parameter import free_filter, numbers_as_arrays, unwrap
 from .data import (
     FitData,
     StepPolicy,
@@ -169,15 +169,15 @@ def _lanes_on_devices(data: FitData) -> FitData:
     return eqx.tree_at(where, data, spread(where(data), mesh))
 
 
-def warn_broken_constraints(model, experiments) -> list[str]:
-    """Warn (and return the messages) where a fitted model breaks its own physical
-    constraints (a negative dashpot, ...) over the inputs of `experiments`: a plain
-    parameter is fitted without bounds, and on poor data it can leave them; its
-    simulations (`simulate`, `load_model`) would then refuse the model."""
+def broken_constraints(model, experiments) -> list[str]:
+    """The messages of the physical constraints (a negative dashpot, ...) that
+    `model` (its values: constraint wrappers resolved) breaks over the inputs of
+    `experiments` (a current law is checked across their range), or []."""
     device = model.model if isinstance(model, ChannelDelay) else model
     hysteresis = device.hysteresis if isinstance(device, Damper) else device
     if not isinstance(hysteresis, AbstractHysteresis) or not experiments:
         return []
+    hysteresis = unwrap(hysteresis)
     inputs = np.concatenate(
         [np.ravel(np.asarray(e.current, float)) for e in experiments]
     )
@@ -185,11 +185,23 @@ def warn_broken_constraints(model, experiments) -> list[str]:
         checks = hysteresis.checks_over(
             jnp.asarray(inputs.min()), jnp.asarray(inputs.max())
         )
-        broken = [c.message() for c in checks if not bool(np.all(np.asarray(c.ok)))]
+        return [
+            c.message().rstrip(".")
+            for c in checks
+            if not bool(np.all(np.asarray(c.ok)))
+        ]
+
+
+def warn_broken_constraints(model, experiments) -> list[str]:
+    """Warn (and return the messages) where a fitted model breaks its own physical
+    constraints over the inputs of `experiments`: a plain parameter is fitted
+    without bounds, and on poor data it can leave them; its simulations
+    (`simulate`, `load_model`) would then refuse the model."""
+    broken = broken_constraints(model, experiments)
     if broken:
         warnings.warn(
             "the fitted model breaks its own constraints: "
-            + "; ".join(m.rstrip(".") for m in broken)
+            + "; ".join(broken)
             + ". Its simulations will refuse it: constrain those parameters "
             "(jaxmr.Positive, jaxmr.Bounded), as jaxmr.templates does, or check the "
             "data.",

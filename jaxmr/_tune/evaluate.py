@@ -1,6 +1,6 @@
 """`evaluate`: every metric of every held-out road."""
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 
 import equinox as eqx
 import jax
@@ -57,6 +57,11 @@ def evaluate(
     chosen = chooses_steps(integrator, deprecated)
     sampling, integrator = loop_settings("evaluate", sampling, integrator, deprecated)
     noise = sensor_noise(sensors, sensor_key, "evaluate")
+    if metrics is not None and not isinstance(metrics, Mapping):
+        raise TypeError(
+            "evaluate: `metrics` must map names to functions of a solution, e.g. "
+            f"{{'comfort': jaxmr.metrics.comfort}}, got {type(metrics).__name__}."
+        )
     metrics = {"comfort": comfort} if metrics is None else dict(metrics)
     # The roads, each with its index (its noise), spread over every device of every
     # process (padded to a whole number per device); every process gets every

@@ -195,6 +195,10 @@ def tune(
     noise = sensor_noise(sensors, sensor_key, "tune")
     if not isinstance(steps, int) or steps < 1:
         raise ValueError(f"tune: `steps` must be a positive integer, got {steps!r}.")
+    if isinstance(patience, bool) or not isinstance(patience, int) or patience < 1:
+        raise ValueError(
+            f"tune: `patience` must be a positive integer, got {patience!r}."
+        )
     if not isinstance(check_every, int) or check_every < 1:
         raise ValueError(
             f"tune: `check_every` must be a positive integer, got {check_every!r}."

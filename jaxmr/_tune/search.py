@@ -80,6 +80,21 @@ def random_search(
     `key` (the candidates' draw, not the noise).
     """
     who = "random_search"
+    if not (np.isfinite(spread) and spread > 0):
+        raise ValueError(f"{who}: `spread` must be > 0, got {spread!r}.")
+    if log_space is True and spread <= 1:
+        raise ValueError(
+            f"{who}: `spread` is a factor in log space, so it must be > 1 (a factor "
+            f"{spread!r} spans nothing around the start), got {spread!r}."
+        )
+    if (
+        isinstance(population, bool)
+        or not isinstance(population, int)
+        or population < 1
+    ):
+        raise ValueError(
+            f"{who}: `population` must be an integer >= 1, got {population!r}."
+        )
     sampling = own_sampling(controller, sampling, deprecated)
     chosen = chooses_steps(integrator, deprecated)
     sampling, integrator = loop_settings(who, sampling, integrator, deprecated)
@@ -242,6 +257,19 @@ def cma_es(
             'cma_es needs evosax: pip install "jaxmr[search]" (or evosax).'
         ) from error
     who = "cma_es"
+    if not (np.isfinite(sigma) and sigma > 0):
+        raise ValueError(
+            f"{who}: `sigma` must be > 0 (the search's step size), got {sigma!r}."
+        )
+    if population is not None and (
+        isinstance(population, bool)
+        or not isinstance(population, int)
+        or population < 2
+    ):
+        raise ValueError(
+            f"{who}: `population` must be an integer >= 2 (or None: CMA-ES's own "
+            f"4 + 3 ln(dimension)), got {population!r}."
+        )
     sampling = own_sampling(controller, sampling, deprecated)
     chosen = chooses_steps(integrator, deprecated)
     sampling, integrator = loop_settings(who, sampling, integrator, deprecated)
@@ -266,10 +294,13 @@ def cma_es(
     )
     flat0, unravel = ravel_pytree(u0)
     size = population or 4 + int(3 * np.log(flat0.size))
-    if size * runs > simulations:
+    if (1 + size) * runs > simulations:
+        # The start is simulated first: a budget without room for one generation
+        # after it returned the start unchanged.
         raise ValueError(
-            f"cma_es: one generation of {size} candidates on {runs} runs needs "
-            f"{size * runs} simulations, more than the budget of {simulations}."
+            f"cma_es: the start and one generation of {size} candidates on {runs} runs "
+            f"need {(1 + size) * runs} simulations, more than the budget of "
+            f"{simulations}."
         )
     # evosax relies on numpy-style dtype promotion (float times bool): give it that
     # whatever the user's `jax_numpy_dtype_promotion` setting.
