@@ -117,6 +117,41 @@ def numbers_as_arrays(tree):
     )
 
 
+def fixed_modes(tree):
+    """`tree` with every parameter that sits at a *mode* of its model `Fixed`: a value
+    that selects a form of the model rather than a size (`fit_modes`, a class
+    attribute mapping field names to such values: Bingham's `velocity_scale` of 0,
+    the exact sign). The force does not change with the parameter there, so a fit
+    could only report it unidentified; a fit leaves it alone instead."""
+
+    def has_modes(x) -> bool:
+        return isinstance(x, eqx.Module) and bool(getattr(type(x), "fit_modes", None))
+
+    def fix(module):
+        if not has_modes(module):
+            return module
+        for name, mode in type(module).fit_modes.items():
+            value = getattr(module, name)
+            if (
+                eqx.is_array(value)
+                and value.ndim == 0
+                and is_concrete(value)
+                and float(value) == mode
+            ):
+                module = eqx.tree_at(
+                    lambda m, name=name: getattr(m, name), module, Fixed(value)
+                )
+        return module
+
+    return jax.tree.map(fix, tree, is_leaf=has_modes)
+
+
+def fitted_form(model):
+    """A model as a fit takes it: its plain floats as arrays (`numbers_as_arrays`)
+    and its parameters at a mode `Fixed` (`fixed_modes`)."""
+    return fixed_modes(numbers_as_arrays(model))
+
+
 def free_filter(tree):
     """A filter spec: True for the array leaves a fit varies (not those in `Fixed`)."""
 

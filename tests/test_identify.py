@@ -334,3 +334,29 @@ def test_a_fit_that_breaks_its_models_constraints_says_so():
     jaxmr.fit(
         template, [run], max_steps=20, progress=False
     )  # no warning (an error here)
+
+
+def test_a_parameter_at_a_mode_of_its_model_is_left_alone():
+    """Bingham's `velocity_scale` of 0 (its default) is the exact sign, a form of the
+    model rather than a size: the force does not change with it there. A fit of a
+    plain `Bingham(f_c, c0)` leaves it alone and converges (it had varied it and
+    reported it unidentified, "not converged", on every such fit); a positive one is
+    fitted."""
+    import jaxmr.data
+
+    t = np.linspace(0.0, 1.0, 201)
+    w = 2 * np.pi
+    v = 0.01 * w * np.cos(w * t)
+    noise = np.random.default_rng(7).normal(0.0, 1.0, t.size)  # [N], 0.3 % of f_c
+    force = 300 * np.sign(v) + 2000 * v + noise
+    run = jaxmr.data.Experiment(t, 0.01 * np.sin(w * t), v, 0.0, force, name="run")
+    result = jaxmr.fit(jaxmr.Bingham(100.0, 500.0), [run], max_steps=30, progress=False)
+    assert result.names == (".f_c", ".c0", ".f0") and result.converged, result.outcome
+    assert float(result.model.velocity_scale) == 0.0
+    # Within 4 standard errors of the truth (measured 0.2 and 3.6 N, 1.1 and 1.4 sd).
+    truth = np.array([300.0, 2000.0])
+    assert np.all(np.abs(result.values[:2] - truth) < 4 * result.std_errors[:2])
+    smooth = jaxmr.Bingham(100.0, 500.0, velocity_scale=jaxmr.Positive(0.01))
+    assert (
+        ".velocity_scale" in jaxmr.fit(smooth, [run], max_steps=2, progress=False).names
+    )

@@ -24,7 +24,8 @@ class Bingham(AbstractHysteresis):
     - `f_c`: yield (friction) force [N] or torque [N·m], ≥ 0; may be a current law.
     - `c0`: post-yield viscous coefficient [N·s/m] or [N·m·s/rad], ≥ 0; may be a law.
     - `f0`: force offset [N] or [N·m] (accumulator pressure, sensor bias).
-    - `velocity_scale`: $v_s$ [m/s] or [rad/s]; 0 (default) for the exact sign.
+    - `velocity_scale`: $v_s$ [m/s] or [rad/s]; 0 (default) for the exact sign, a
+      form of the model that a fit leaves alone (give $v_s > 0$ to fit it).
     """
 
     f_c: Parameter = eqx.field(converter=as_parameter)
@@ -32,6 +33,9 @@ class Bingham(AbstractHysteresis):
     f0: Parameter = eqx.field(converter=as_parameter, default=0.0)
     velocity_scale: Float[Array, ""] = eqx.field(converter=as_parameter, default=0.0)
     state_names: ClassVar[tuple[str, ...]] = ()
+    # 0 is the exact sign, a form of the model: a fit leaves it there
+    # (`jaxmr._parameter.fixed_modes`).
+    fit_modes: ClassVar[dict[str, float]] = {"velocity_scale": 0.0}
 
     def rates(self, state: State, x: Scalar, v: Scalar) -> State:
         return state

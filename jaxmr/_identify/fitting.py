@@ -18,7 +18,7 @@ from .._distribute import batch_mesh, gather, replicate, spread, to_host
 from .._hysteresis import AbstractHysteresis
 from .._integrate import FixedStep
 from .._misc import warn_if_float32
-from .._parameter import free_filter, numbers_as_arrays, unwrap
+from .._parameter import fitted_form, free_filter, unwrap
 from .data import (
     FitData,
     StepPolicy,
@@ -150,10 +150,14 @@ def _split_model(model):
             "`model` must be a jaxmr hysteresis model, Damper or ChannelDelay (its "
             f"values the initial guess), got {type(model).__name__}."
         )
-    model = numbers_as_arrays(model)
+    model = fitted_form(model)
     free, static = eqx.partition(model, free_filter(model))
     if not jax.tree.leaves(free):
-        raise ValueError("nothing to fit: every parameter of `model` is Fixed.")
+        raise ValueError(
+            "nothing to fit: every parameter of `model` is Fixed (a parameter at a "
+            "mode of its model, e.g. Bingham's `velocity_scale` of 0 for the exact "
+            "sign, counts as fixed: give it a positive value to fit it)."
+        )
     return free, static
 
 
@@ -334,7 +338,7 @@ def fit(
     check_budget(max_steps, patience)
     # A start read from a file holds the range of the data it was fitted on, not
     # of these: the fitted model holds none (`with_fitted_range` gives it one).
-    model = numbers_as_arrays(with_fitted_range(model, None))
+    model = fitted_form(with_fitted_range(model, None))
     free, static = _split_model(model)
     experiments = experiment_list(experiments)
     policy = as_step_policy(integrator)
@@ -369,7 +373,7 @@ def fit(
         if starts is None or isinstance(starts, int):
             ys = jax.tree.map(lambda a: a[None], free)
         else:
-            models = [numbers_as_arrays(with_fitted_range(m, None)) for m in starts]
+            models = [fitted_form(with_fitted_range(m, None)) for m in starts]
             frees = [eqx.filter(m, free_filter(m)) for m in models]
             ys = jax.tree.map(lambda *xs: jnp.stack(xs), *frees)
         fit_residuals, unscaled = _fit_residuals(_starts_inside(ys, static, data))
@@ -496,7 +500,7 @@ def fit_each(
                 "class, laws and Fixed parameters), differing only in values."
             )
         model = model[0]
-    model = numbers_as_arrays(model)
+    model = fitted_form(model)
     free, static = _split_model(model)
     policy = as_step_policy(integrator)
     n = len(experiments)

@@ -29,7 +29,7 @@ from .._custom_types import Array, Float
 from .._damper import with_fitted_range
 from .._integrate import FixedStep
 from .._misc import as_float_array, is_concrete, to_device
-from .._parameter import free_filter, numbers_as_arrays, unwrap
+from .._parameter import fitted_form, free_filter, unwrap
 from .._signal import AbstractSignal, _is_uniform, as_signal
 from .._systems.base import AbstractSystem
 from .data import per_experiment
@@ -397,7 +397,7 @@ def fit_system(
     if not isinstance(substeps, int) or substeps < 1:
         raise ValueError(f"`substeps` must be a positive integer, got {substeps!r}.")
     data = _stack_records(records, system, dt, discard)
-    system = numbers_as_arrays(system)
+    system = fitted_form(system)
     free, static = eqx.partition(system, free_filter(system))
     if not jax.tree.leaves(free):
         raise ValueError("nothing to fit: every parameter of `system` is Fixed.")

@@ -43,7 +43,8 @@ class BinghamDisc(AbstractHysteresis):
     - `viscosity`: plastic viscosity $\eta_f$ [Pa·s]; ≥ 0.
     - `induction`: $B_f$ [T], a number or a current law (see above).
     - `velocity_scale`: $\Omega_s$ [rad/s]; > 0 uses $\tanh(\Omega/\Omega_s)$ for the sign
-      (what gradients through a speed reversal need), 0 (default) the exact sign.
+      (what gradients through a speed reversal need), 0 (default) the exact sign (a
+      form of the model that a fit leaves alone).
     """
 
     K1: Float[Array, ""] = eqx.field(converter=as_parameter)
@@ -56,6 +57,9 @@ class BinghamDisc(AbstractHysteresis):
     induction: Parameter = eqx.field(converter=as_parameter)
     velocity_scale: Float[Array, ""] = eqx.field(converter=as_parameter, default=0.0)
     state_names: ClassVar[tuple[str, ...]] = ()
+    # 0 is the exact sign, a form of the model: a fit leaves it there
+    # (`jaxmr._parameter.fixed_modes`).
+    fit_modes: ClassVar[dict[str, float]] = {"velocity_scale": 0.0}
 
     def yield_stress(self, B_f: Float[ArrayLike, "*shape"]) -> Float[Array, "*shape"]:
         """$\\tau_y$ [Pa] at fluid induction $B_f$ [T]."""
