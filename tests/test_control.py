@@ -441,6 +441,13 @@ def test_force_feedback_mlp_starts_at_zero_with_a_gradient():
     )
     weights = jaxmr.ForceFeedback.weights((None, law))
     assert [w.shape for w in weights] == [(1, 3), (4, 3), (4,), (1, 4), (1,)]
+    # Around an observer-based controller, the same arrays (an AttributeError on
+    # `network` before), and a law without a network named.
+    wrapped = jaxmr.ObserverBasedController(law, estimator=jaxmr.VelocityEstimator())
+    inner = jaxmr.ForceFeedback.weights((None, wrapped))
+    assert all(a is b for a, b in zip(inner, weights)) and len(inner) == len(weights)
+    with pytest.raises(TypeError, match="selects the weights of a ForceFeedback"):
+        jaxmr.ForceFeedback.weights((None, jaxmr.Skyhook(2000.0, 1.0)))
     m = measurement(body_velocity=0.2, body_acceleration=-1.0, damper_velocity=0.1)
     assert float(law.desired_force(m, 1000.0)) == 0.0
 

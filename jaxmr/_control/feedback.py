@@ -173,8 +173,18 @@ class ForceFeedback(AbstractController):
     def weights(pair) -> list:
         """Every weight of the map, for `tune(..., parameters=ForceFeedback.weights)`
         on a `(system, ForceFeedback)` pair (selected by structure, as `eqx.tree_at`
-        requires)."""
-        network = pair[1].network
+        requires); for an `ObserverBasedController` around one, its law's."""
+        law = pair[1]
+        # An observer-based controller holds the law (its `.law`, as `.tunable`
+        # selects): the weights are there.
+        law = getattr(law, "law", law)
+        network = getattr(law, "network", None)
+        if network is None:
+            raise TypeError(
+                "ForceFeedback.weights selects the weights of a ForceFeedback (or of "
+                "an ObserverBasedController around one), got a "
+                f"{type(pair[1]).__name__}."
+            )
         if isinstance(network, eqx.nn.Linear) and not network.use_bias:
             return [network.weight]
         if isinstance(network, _LinearAndMLP):
