@@ -80,26 +80,41 @@ def _stored(cls, field) -> bool:
     return not (issubclass(cls, AbstractHysteresis) and field.name == "fitted_range")
 
 
-def _encode(value):
+class _Unwritable(TypeError):
+    """A value `save_model` cannot store, with the path of fields down to it."""
+
+    def __init__(self, path: str, what: str):
+        super().__init__(
+            f"cannot write {path} ({what}) to a model file: `save_model` stores jaxmr "
+            "models, their numbers and arrays, not a field of another kind (a "
+            "ForceFeedback's neural network, a user's object): keep such a model in "
+            "Python (e.g. equinox.tree_serialise_leaves), and export a controller "
+            "from there (jaxmr.export_c)."
+        )
+        self.path, self.what = path, what
+
+
+def _encode(value, path: str = "the model"):
     if isinstance(value, eqx.Module):
         fields = {}
         for field in dataclasses.fields(value):
             if not _stored(type(value), field):
                 continue
-            fields[field.name] = _encode(getattr(value, field.name))
+            inner = f"{path}.{field.name}" if path != "the model" else field.name
+            fields[field.name] = _encode(getattr(value, field.name), inner)
         return {"type": type(value).__name__, "fields": fields}
     if isinstance(value, dict):
         # Models by name (a `Sensors` set), marked so that the mapping is never read
         # as a model, nor a mistyped model as a mapping.
         if not all(isinstance(k, str) for k in value):
             raise TypeError("cannot write a dict whose keys are not strings to JSON.")
-        return {"dict": {k: _encode(v) for k, v in value.items()}}
+        return {"dict": {k: _encode(v, f"{path}[{k!r}]") for k, v in value.items()}}
     if value is None or isinstance(value, (bool, int, float, str)):
         return value
     array = np.asarray(value)
     if array.dtype.kind in "fiu":
         return array.tolist()
-    raise TypeError(f"cannot write a value of type {type(value).__name__} to JSON.")
+    raise _Unwritable(path, f"a {type(value).__name__}")
 
 
 def _decode(value, classes, where="model", static=False):

@@ -155,3 +155,17 @@ def test_a_mapping_is_told_from_a_model(tmp_path):
     path.write_text(json.dumps(data))
     with pytest.raises(ValueError, match=r"model\.sensors: expected a number, a model"):
         jaxmr.load_model(path)
+
+
+def test_a_field_that_cannot_be_saved_is_named_by_its_path(tmp_path):
+    """A ForceFeedback's network holds layers as a tuple, which a model file does not
+    store: the error names the path of fields down to it and what to do instead (it
+    had said only "cannot write a value of type tuple"), and no file is left."""
+    law = jaxmr.ForceFeedback.mlp([1.0] * 5, 1.0, width=4, depth=1)
+    controller = jaxmr.ObserverBasedController(law, estimator=jaxmr.VelocityEstimator())
+    path = tmp_path / "controller.json"
+    with pytest.raises(
+        TypeError, match=r"cannot write law\.network\.mlp\.layers \(a tuple\)"
+    ):
+        jaxmr.save_model(controller, path)
+    assert not path.exists()
