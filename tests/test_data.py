@@ -435,6 +435,24 @@ def test_csv_reads_what_spreadsheets_write(tmp_path):
     )
 
 
+def test_read_comments_reads_the_lines_above_the_header(tmp_path):
+    """`# key: value` lines above the header, the first of each key, gzip too; a
+    comment after the header is not one of them."""
+    import gzip
+
+    text = "\n".join(
+        ["# name: run", "# F: predicted by jaxmr", "# name: other", "#no colon"]
+        + ["t,x,i,F", *_GOOD_ROWS, "# after: the header"]
+    )
+    path = tmp_path / "run.csv"
+    path.write_text(text + "\n")
+    expected = {"name": "run", "F": "predicted by jaxmr"}
+    assert jd.read_comments(path) == expected
+    packed = tmp_path / "run.csv.gz"
+    packed.write_bytes(gzip.compress(path.read_bytes()))
+    assert jd.read_comments(packed) == expected
+
+
 def test_processing_longer_than_the_record_is_refused():
     """A discarded start past the record's end, or a moving average wider than the
     record, is refused where the experiment is made, naming both durations."""

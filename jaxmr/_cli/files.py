@@ -10,7 +10,6 @@ becomes a `CLIError` whose message names the file.
 
 import argparse
 import dataclasses
-import gzip
 import hashlib
 import json
 import math
@@ -256,25 +255,10 @@ def beyond_range(fitted, path, experiment) -> str | None:
 
 def predicted_by_jaxmr(path) -> bool:
     """Whether a canonical CSV's force (torque) column is a prediction that `jaxmr
-    predict` wrote (its `# F: predicted by jaxmr` comment line, above the header),
-    not a measurement."""
-    try:
-        with open(path, "rb") as raw:
-            compressed = raw.read(2) == b"\x1f\x8b"
-        opener = gzip.open if compressed else open
-        with opener(path, "rt", encoding="utf-8-sig", errors="replace") as lines:
-            for line in lines:
-                text = line.strip()
-                if text and not text.startswith("#"):
-                    return False  # the header: the comments above it only
-                key, _, value = text[1:].partition(":")
-                if key.strip() in ("F", "T") and value.strip().startswith(
-                    "predicted by jaxmr"
-                ):
-                    return True
-    except (OSError, EOFError):
-        return False
-    return False
+    predict` wrote (its `# F: predicted by jaxmr` comment line), not a measurement."""
+    comments = jaxmr.data.read_comments(path)
+    marks = (comments.get("F", ""), comments.get("T", ""))
+    return any(mark.startswith("predicted by jaxmr") for mark in marks)
 
 
 BAND_LEVEL_HELP = (

@@ -569,7 +569,7 @@ def design_experiments(
     warn_if_float32("jaxmr.design_experiments")
     if isinstance(model, FitResult):
         model = model.constrained
-    free, static = _split_model(model)
+    _, free, static = _split_model(model)
     candidates, already = list(candidates), list(already)
     n = len(candidates)
     if n == 0:

@@ -145,6 +145,7 @@ def _check_enough_data(free, data, where: str = "") -> None:
 
 
 def _split_model(model):
+    """`model` as a fit takes it (`fitted_form`), and its free and static parts."""
     if not isinstance(model, (AbstractHysteresis, Damper, ChannelDelay)):
         raise TypeError(
             "`model` must be a jaxmr hysteresis model, Damper or ChannelDelay (its "
@@ -158,7 +159,7 @@ def _split_model(model):
             "mode of its model, e.g. Bingham's `velocity_scale` of 0 for the exact "
             "sign, counts as fixed: give it a positive value to fit it)."
         )
-    return free, static
+    return model, free, static
 
 
 def _lanes_on_devices(data: FitData) -> FitData:
@@ -338,8 +339,7 @@ def fit(
     check_budget(max_steps, patience)
     # A start read from a file holds the range of the data it was fitted on, not
     # of these: the fitted model holds none (`with_fitted_range` gives it one).
-    model = fitted_form(with_fitted_range(model, None))
-    free, static = _split_model(model)
+    model, free, static = _split_model(with_fitted_range(model, None))
     experiments = experiment_list(experiments)
     policy = as_step_policy(integrator)
     options = dict(
@@ -494,14 +494,13 @@ def fit_each(
                 "model for all)."
             )
         own_starts = [_split_model(m) for m in model]
-        if len({jax.tree.structure(s) for _, s in own_starts}) != 1:
+        if len({jax.tree.structure(s) for _, _, s in own_starts}) != 1:
             raise ValueError(
                 "the starting models in `model` must have one structure (the same "
                 "class, laws and Fixed parameters), differing only in values."
             )
         model = model[0]
-    model = fitted_form(model)
-    free, static = _split_model(model)
+    _, free, static = _split_model(model)
     policy = as_step_policy(integrator)
     n = len(experiments)
     discards = per_experiment(discard, experiments, "discard")
@@ -522,7 +521,7 @@ def fit_each(
     if own_starts is None:
         ys = jax.tree.map(lambda a: jnp.broadcast_to(a, (count,) + a.shape), free)
     else:
-        frees = [f for f, _ in own_starts]
+        frees = [f for _, f, _ in own_starts]
         frees += [frees[-1]] * (count - n)
         ys = jax.tree.map(lambda *a: jnp.stack(a), *frees)
     ys = spread(ys, mesh)

@@ -733,7 +733,8 @@ ACCEPTED_PATIENCE = 3
 
 def check_budget(max_steps, patience) -> None:
     """`max_steps` and `patience` are integers >= 1 (0 steps had reported a fit
-    "failed: every evaluated point gave a non-finite loss")."""
+    "failed: every evaluated point gave a non-finite loss"): checked by every entry
+    point of `iterate` (`fit`, `fit_each`, `fit_system`) before anything compiles."""
     for name, value in (("max_steps", max_steps), ("patience", patience)):
         if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
             raise TypeError(f"`{name}` must be an integer, got {value!r}.")
@@ -774,7 +775,6 @@ def iterate(
     Returns the best ys and one `Outcome` per member (its best loss, the history of
     the batch's best loss, the steps taken, its `StopReason`).
     """
-    check_budget(max_steps, patience)
     if first is None:
         dynamic, static_state = eqx.partition(
             _init(solver, ys, args, data_axis, chunk, mesh), eqx.is_array

@@ -8,6 +8,7 @@ An `Experiment` holds one test in SI units and turns it into the signals that
 from ._convert import DATASETS as DATASETS, convert_dataset as convert_dataset
 from ._csv import (
     experiment_name as experiment_name,
+    read_comments as read_comments,
     read_csv as read_csv,
     read_processing as read_processing,
     write_csv as write_csv,

@@ -376,6 +376,29 @@ def _seconds_text(key: str, value: float | None) -> str | None:
     return f"# {key}: {number!r} s"
 
 
+def read_comments(path: str | os.PathLike) -> dict[str, str]:
+    """The `# key: value` comment lines above a canonical CSV file's header, e.g.
+    `{"name": "run", "F": "predicted by jaxmr 0.1.0 with ..."}` (`jaxmr predict`
+    marks the force it wrote so); the first line of each key counts, keys as
+    written.
+
+    **Arguments:** `path`: the file (gzip-compressed too).
+
+    **Returns:** a dict from key to value, both stripped.
+    """
+    comments: dict[str, str] = {}
+    for _, text in _lines(Path(path)):
+        text = text.strip()
+        if not text:
+            continue
+        if not text.startswith("#"):
+            break  # the header
+        key, sep, value = text[1:].partition(":")
+        if sep:
+            comments.setdefault(key.strip(), value.strip())
+    return comments
+
+
 def read_processing(path: str | os.PathLike) -> dict[str, float | None]:
     """Read the processing comments of a canonical CSV file (see the module docstring).
 
