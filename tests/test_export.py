@@ -506,6 +506,28 @@ def test_the_stablehlo_program_gives_the_jax_commands(tmp_path, skyhook, recorde
     )
 
 
+def test_an_open_loop_law_exports_on_the_clock_by_default(tmp_path):
+    # An open-loop law reads only the time: its export's default input is the clock
+    # (it failed with "'time' is not measured" before), and the program follows the
+    # schedule sample by sample.
+    schedule = jaxmr.CurrentSchedule(jnp.array([-2.0, 0.0, 3.0]), i_max=2.0, dt=0.01)
+    controller = jaxmr.ObserverBasedController(schedule)
+    path = tmp_path / "schedule.stablehlo"
+    jaxmr.export_stablehlo(controller, path)
+    program = jax.export.deserialize(bytearray(path.read_bytes()))
+    assert program.in_avals[1].shape == (1,)  # the time alone
+    state = jnp.zeros(program.in_avals[0].shape, jnp.float64)
+    commands = [
+        float(program.call(state, jnp.array([t]), jnp.array(k == 0))[0])
+        for k, t in enumerate([0.0, 0.01, 0.02, 0.05])
+    ]
+    expected = 2.0 * jax.nn.sigmoid(jnp.array([-2.0, 0.0, 3.0, 3.0]))
+    np.testing.assert_allclose(commands, expected, rtol=1e-14)
+    # A constant current needs nothing else either.
+    constant = jaxmr.ObserverBasedController(jaxmr.ConstantCurrent(0.5, 1.0))
+    jaxmr.export_stablehlo(constant, tmp_path / "constant.stablehlo")
+
+
 # -- files and refusals ----------------------------------------------------------------
 
 

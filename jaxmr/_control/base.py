@@ -1,6 +1,7 @@
 """The abstract semi-active controller and the damper as the controller sees it."""
 
 import abc
+from typing import ClassVar
 
 import equinox as eqx
 import jax.numpy as jnp
@@ -128,6 +129,9 @@ class ConstantCurrent(AbstractController):
 
     current: Float[Array, ""] = eqx.field(converter=as_float_array)
     i_max: Float[Array, ""] = eqx.field(converter=as_float_array, default=None)
+    # It reads only the clock (for the command's dtype and batch axes): an export's
+    # default measurements are then the time alone.
+    reads_time: ClassVar[bool] = True
 
     def __init__(self, current, i_max=None):
         self.current = current

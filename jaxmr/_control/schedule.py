@@ -1,6 +1,7 @@
 """An open-loop current schedule: the ceiling a causal law is measured against."""
 
 import math
+from typing import ClassVar
 
 import equinox as eqx
 import jax
@@ -30,6 +31,8 @@ class CurrentSchedule(AbstractController):
     logits: Float[Array, " samples"] = eqx.field(converter=as_float_array)
     i_max: Float[Array, ""] = eqx.field(converter=as_float_array)
     dt: float = eqx.field(static=True, default=1e-3)
+    # Open loop: it reads only the clock, the default measurement of its export.
+    reads_time: ClassVar[bool] = True
 
     def __check_init__(self):
         check_concrete(

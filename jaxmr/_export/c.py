@@ -611,7 +611,9 @@ def export_c(
       changes the arithmetic (a wheel accelerometer, a load cell's `damper_force`).
       Default: with an estimator the quarter car's realistic sensors
       (`body_acceleration`, `wheel_acceleration`, `damper_displacement`), without
-      one what the law and the observer read.
+      one what the law and the observer read (a law's `features`; `time` for an
+      open-loop law such as `CurrentSchedule`; otherwise `body_velocity` and
+      `damper_velocity`).
     - `force`: replace existing files (default False: an existing file is an error
       and nothing is written). Each file is written whole or not at all.
 

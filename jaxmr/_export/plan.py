@@ -38,9 +38,13 @@ def measurement_names(controller: ObserverBasedController, measurements) -> tupl
         if controller.estimator is not None:
             names = CAR
         else:
+            # A law says what it reads: its `features`, or the clock alone for a law
+            # that runs open loop (`reads_time`, e.g. `CurrentSchedule`); any other
+            # reads the velocities the common laws use.
             law_reads = getattr(controller.law, "features", None) or (
-                "body_velocity",
-                "damper_velocity",
+                ("time",)
+                if getattr(controller.law, "reads_time", False)
+                else ("body_velocity", "damper_velocity")
             )
             names = tuple(law_reads)
             if controller.observer is not None:
