@@ -54,7 +54,11 @@ def as_float_array(x: ArrayLike) -> Array:
     """Converter for numeric fields: a float array of jax's default float dtype."""
     if isinstance(x, (jax.Array, jax.core.Tracer)):
         return jnp.asarray(x, dtype=default_float())
-    # A host value is converted in NumPy: see `to_device`.
+    # A host value is converted in NumPy: see `to_device`. NumPy would read the text
+    # "2000" as a number; a string here is a mistake (a value read from a file and
+    # not converted), so it is named rather than taken.
+    if isinstance(x, (str, bytes)) or np.asarray(x).dtype.kind in "USO":
+        raise TypeError(f"expected a number or an array of numbers, got {x!r}.")
     return to_device(np.asarray(x, dtype=default_float()))
 
 

@@ -500,6 +500,38 @@ def test_wrong_type_jaxmr_message(argument, arguments):
         _prepare(*arguments)
 
 
+def test_text_for_a_number_is_named():
+    # NumPy reads the text "2000" as a number; a model or law handed text (a value
+    # read from a file and not converted) is refused, not silently converted. (The
+    # suite's typechecker may answer first, naming the converter's parameter 'x'.)
+    jaxmr_or_checker = r"expected a number .*got '{}'|parameter '\w+'"
+    with pytest.raises(TypeError, match=jaxmr_or_checker.format(2000)):
+        jaxmr.Skyhook("2000", 1.0)
+    with pytest.raises(TypeError, match=jaxmr_or_checker.format("1e3")):
+        bouc_wen(alpha="1e3")
+    # jaxmr's own check, beneath the typechecker (what users without it see).
+    from jaxmr._misc import as_float_array
+
+    convert = getattr(as_float_array, "__wrapped__", as_float_array)
+    with pytest.raises(TypeError, match=r"expected a number .*got '2000'"):
+        convert("2000")
+    with pytest.raises(TypeError, match=r"expected a number .*got \['1', '2'\]"):
+        convert(["1", "2"])
+    assert float(convert(np.float32(2.5))) == 2.5
+
+
+def test_a_controller_checks_its_estimator_against_the_sample_rate():
+    law = jaxmr.Skyhook(2000.0, 1.0)
+    with pytest.raises(ValueError, match=r"`crossover` \(600.0 Hz\) must lie below "
+                       r"half the sample rate \(500 Hz"):  # fmt: skip
+        jaxmr.ObserverBasedController(
+            law, estimator=jaxmr.VelocityEstimator(crossover=600.0)
+        )
+    inner = jaxmr.ObserverBasedController(law)
+    with pytest.raises(TypeError, match="itself an ObserverBasedController"):
+        jaxmr.ObserverBasedController(inner)
+
+
 def test_damper_wrong_types():
     with pytest.raises(TypeError, match=names("hysteresis")):
         jaxmr.Damper("BoucWen")

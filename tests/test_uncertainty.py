@@ -175,6 +175,20 @@ def test_sample_draws_from_the_covariance(refits):
     np.testing.assert_allclose(np.std(logs, axis=0), expected, rtol=0.05)
 
 
+def three_currents(truth, seed):
+    """Sine tests of `truth` at 0, 0.5 and 1 A with 1 % white force noise."""
+    tests = []
+    rng = np.random.default_rng(seed)
+    for i in (0.0, 0.5, 1.0):
+        test = sine_test(500)
+        test.current = np.full(500, i)
+        (clean,) = jaxmr.predict_all(truth, [test], integrator=POLICY)
+        test.force = clean + 0.01 * np.std(clean) * rng.standard_normal(clean.size)
+        test.name = f"{i} A"
+        tests.append(test)
+    return tests
+
+
 def test_a_well_determined_fit_raises_no_warning():
     """A Dahl model with current laws fitted to three tests at 0, 0.5 and 1 A with
     1 % white noise: every parameter is determined to a few per cent, and the fit
@@ -184,15 +198,7 @@ def test_a_well_determined_fit_raises_no_warning():
         k_w=jaxmr.LinearLaw(150.0, 600.0),
         rho=800.0,
     )
-    tests = []
-    rng = np.random.default_rng(3)
-    for i in (0.0, 0.5, 1.0):
-        test = sine_test(500)
-        test.current = np.full(500, i)
-        (clean,) = jaxmr.predict_all(truth, [test], integrator=POLICY)
-        test.force = clean + 0.01 * np.std(clean) * rng.standard_normal(clean.size)
-        test.name = f"{i} A"
-        tests.append(test)
+    tests = three_currents(truth, seed=3)
     P = jaxmr.Positive
     start = jaxmr.Dahl(
         k_x=jaxmr.LinearLaw(P(700.0), P(1800.0)),
@@ -204,6 +210,34 @@ def test_a_well_determined_fit_raises_no_warning():
     assert np.all(result.std_errors / result.values < 0.1), result.table()
     assert result.poorly_determined == () and result.unidentified == (), str(result)
     assert "WARNING" not in str(result)
+
+
+def test_an_offset_fitted_to_about_zero_raises_no_warning():
+    """A Bingham damper without offset, fitted with a free force offset `f0` to
+    three tests (1 % white noise): `f0` ends near 0 with an error beyond its value
+    (its relative error is over 100 %), yet it moves the force by a tiny fraction
+    of its size, so the fit names nothing as poorly determined or unidentified
+    (before: "poorly determined: .f0 ... relative standard error ...")."""
+    truth = jaxmr.Bingham(
+        f_c=jaxmr.LinearLaw(100.0, 400.0), c0=jaxmr.LinearLaw(800.0, 1500.0),
+        velocity_scale=0.01,
+    )  # fmt: skip
+    tests = three_currents(truth, seed=5)
+    P = jaxmr.Positive
+    start = jaxmr.Bingham(
+        f_c=jaxmr.LinearLaw(P(80.0), P(300.0)),
+        c0=jaxmr.LinearLaw(P(700.0), P(1800.0)),
+        velocity_scale=jaxmr.Fixed(0.01),
+        f0=0.0,
+    )
+    result = jaxmr.fit(start, tests, integrator=POLICY, progress=False)
+    assert result.converged, result.reason
+    k = result.names.index(".f0")
+    f0, f0_std = result.values[k], result.std_errors[k]
+    # Consistent with 0, an error beyond its value, and below 1e-3 of the forces'
+    # size (about 100-500 N): the case the rule is for.
+    assert abs(f0) < f0_std < 0.5, (f0, f0_std)
+    assert result.poorly_determined == () and result.unidentified == (), str(result)
 
 
 def test_a_redundant_group_is_named_once():

@@ -9,6 +9,7 @@ import equinox as eqx
 import jax.numpy as jnp
 
 from .._custom_types import PyTree, Scalar
+from .._misc import check_concrete
 from .base import AbstractController, DamperPlant
 from .estimator import EstimatorState, VelocityEstimator
 from .observer import DamperObserver, ObserverState
@@ -97,6 +98,12 @@ class ObserverBasedController(AbstractController):
                 "ObserverBasedController: `law` must be a jaxmr controller, got "
                 f"{type(self.law).__name__}."
             )
+        if isinstance(self.law, ObserverBasedController):
+            raise TypeError(
+                "ObserverBasedController: `law` is itself an ObserverBasedController; "
+                "wrap the plain law once (its estimator, observer and sampling go in "
+                "the one wrapper)."
+            )
         if self.estimator is not None and not isinstance(
             self.estimator, VelocityEstimator
         ):
@@ -114,6 +121,19 @@ class ObserverBasedController(AbstractController):
                 "ObserverBasedController: `sampling` must be a jaxmr.Sampling(dt, "
                 f"delay), got {type(self.sampling).__name__}."
             )
+        if self.estimator is not None:
+            # A filter's corner at or above half the sample rate is aliased: the
+            # tracker's poles wrap round and its estimates are noise or diverge.
+            nyquist = 0.5 / self.sampling.dt
+            for name in ("crossover", "high_pass", "position_high_pass"):
+                value = getattr(self.estimator, name)
+                check_concrete(
+                    value < nyquist,
+                    f"ObserverBasedController: the estimator's `{name}` ({value} Hz) "
+                    f"must lie below half the sample rate ({nyquist:g} Hz at dt = "
+                    f"{self.sampling.dt:g} s).",
+                    value,
+                )
         if self.oracle and self.observer is not None:
             raise ValueError(
                 "ObserverBasedController: `oracle=True` hands the law the device's true "

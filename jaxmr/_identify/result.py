@@ -24,6 +24,12 @@ MAX_CORRELATION = 0.99
 # record has five parameters in one near-null direction, each known to 0.06 % or
 # better: nothing a user should fix.
 MAX_GROUP_RELATIVE_ERROR = 0.1
+# A parameter whose whole effect on the force is small (an offset or an accumulator
+# stiffness fitted to about 0 on data that need none) has errors large against its
+# value and still leaves the force determined. Errors are judged relative to each
+# parameter's magnitude: the larger of |value| and the value at which it would move
+# the force by this fraction of the model's largest term (`magnitudes`).
+EFFECT_FLOOR = 0.01
 
 
 class StopReason(enum.Enum):
@@ -122,13 +128,17 @@ class FitResult:
       matrices (covariance in the product of the two parameters' units; NaN in the
       rows and columns of a parameter with an infinite error).
     - `singular_values`: of the Jacobian with columns scaled by the parameter values
-      (relative sensitivities), largest first.
+      (relative sensitivities), largest first; a parameter of small effect (a
+      force offset fitted to about 0) by the value at which it would move the
+      force by 1 % of the model's largest term where that is larger, so that
+      it is neither "not identified" nor "poorly determined" for being small.
     - `unidentified`: descriptions of parameter combinations the data do not determine
       (empty when all are identified).
     - `poorly_determined`: warnings from those errors, each named once: one per group
       of redundant parameters (correlated beyond ±0.99, pairwise or as a group),
       one for those with no finite error, one per other parameter whose relative
-      standard error exceeds 100 % (empty for a well-determined fit).
+      standard error exceeds 100 % (of its magnitude, as above; empty for a
+      well-determined fit).
     - `rmse`, `nrmse`: per experiment [force unit] and RMSE/std(F) (from
       `fit_system`: per record, in the output's unit, and RMSE/std(output)).
     - `experiment_names`.
@@ -420,17 +430,19 @@ def _redundant_groups(corr, finite) -> list[list[int]]:
     return [g for g in groups.values() if len(g) >= 2]
 
 
-def poorly_determined(values, std, corr, names) -> list[str]:
+def poorly_determined(values, std, corr, names, magnitude=None) -> list[str]:
     """Warnings for what the data barely determine, each named once: one message per
     group of redundant parameters (`_redundant_groups`: the data determine a
     combination of them, not each) where a member's relative standard error exceeds
     `MAX_GROUP_RELATIVE_ERROR`, one for the parameters with no finite standard
     error, and one per other parameter whose relative standard error exceeds
     `MAX_RELATIVE_ERROR`. A well-determined fit gets none, however correlated its
-    parameters."""
+    parameters. Errors are relative to `magnitude` (`Statistics.magnitude`; default
+    |value|)."""
     values, std = np.asarray(values, float), np.asarray(std, float)
+    magnitude = np.abs(values) if magnitude is None else np.asarray(magnitude, float)
     with np.errstate(divide="ignore", invalid="ignore"):
-        relative = np.where(values != 0, np.abs(std / values), np.inf)
+        relative = np.where(magnitude != 0, np.abs(std / magnitude), np.inf)
     messages = []
     loose = ~np.isfinite(std)
     if np.any(loose):
@@ -461,9 +473,15 @@ def poorly_determined(values, std, corr, names) -> list[str]:
             "or add experiments that tell them apart."
         )
     for k in np.flatnonzero(~loose & ~grouped & (relative > MAX_RELATIVE_ERROR)):
+        of = (
+            ""
+            if magnitude[k] == abs(values[k])
+            else f" of {magnitude[k]:.3g}, the size at which it would move the force "
+            f"by {EFFECT_FLOOR:.0%} of the model's largest term"
+        )
         messages.append(
             f"poorly determined: {names[k]} = {values[k]:.4g} ± {std[k]:.3g} "
-            f"(relative standard error {relative[k]:.0%}); the data barely constrain "
+            f"(relative standard error {relative[k]:.0%}{of}); the data barely constrain "
             "it: fix it (jaxmr.Fixed) or add experiments that excite it."
         )
     return messages
@@ -496,8 +514,13 @@ class Statistics(NamedTuple):
     cov: np.ndarray
     """The covariance; NaN in the rows and columns of parameters with `std` inf."""
     sv: np.ndarray
-    """Singular values of the Jacobian with columns scaled by |value|, largest first."""
+    """Singular values of the Jacobian with columns scaled by the parameters'
+    `magnitude`, largest first."""
     Vt: np.ndarray
+    magnitude: np.ndarray
+    """The larger of |value| and the value at which the parameter would move the
+    force by `EFFECT_FLOOR` of the model's largest term (`magnitudes`): what its
+    errors are relative to."""
     """Its right singular vectors (rows)."""
 
 
@@ -659,6 +682,22 @@ def _middle(r, Js, groups, bread, errors: str):
     return middle
 
 
+def magnitudes(values, J) -> np.ndarray:
+    """What each parameter's errors are relative to: the larger of |value| and
+    `EFFECT_FLOOR` × E / ‖J_k‖, the value at which it would move the (weighted)
+    force by that fraction of E, the largest whole effect ‖value_j J_j‖ among the
+    parameters. `J`: d residual / d value, columns in `values`' order."""
+    values = np.asarray(values, float)
+    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+        norms = np.linalg.norm(J, axis=0)
+        whole = np.abs(values) * norms
+        finite = whole[np.isfinite(whole)]
+        largest = float(np.max(finite)) if finite.size else 0.0
+        floor = np.where(norms > 0, EFFECT_FLOOR * largest / norms, 0.0)
+    floor = np.where(np.isfinite(floor), floor, 0.0)
+    return np.maximum(np.abs(values), floor)
+
+
 def statistics_from(r, J_raw, free, static, groups, errors=None) -> Statistics:
     r"""`Statistics` from the residual `r` and its Jacobian (`jacobian_matrix`'s
     layout; `groups`: each experiment's rows of `r`, in time order).
@@ -686,12 +725,13 @@ def statistics_from(r, J_raw, free, static, groups, errors=None) -> Statistics:
     # Chain rule: d r / d value = (d r / d free) / (d value / d free), elementwise.
     J = J_raw / np.where(dvalue == 0, 1.0, dvalue)[None, :]
     p = J.shape[1]
-    scale = np.where(values == 0, 1.0, np.abs(values))
+    magnitude = magnitudes(values, J)
+    scale = np.where(magnitude == 0, 1.0, magnitude)
     Js = J * scale[None, :]
     if not np.all(np.isfinite(Js)) or not np.all(np.isfinite(r)):
         nan = np.full(p, np.nan)
         square = np.full((p, p), np.nan)
-        return Statistics(values, nan, square, square, nan, np.eye(p))
+        return Statistics(values, nan, square, square, nan, np.eye(p), magnitude)
     # A diverged model (absurd but finite forces) overflows these products: its
     # errors come out inf or NaN, which the result reports, with no NumPy warning.
     with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
@@ -709,7 +749,7 @@ def statistics_from(r, J_raw, free, static, groups, errors=None) -> Statistics:
         matrix[:, loose] = np.nan
     np.fill_diagonal(corr, 1.0)
     cov[loose, loose] = np.inf
-    return Statistics(values, std, corr, cov, sv, Vt)
+    return Statistics(values, std, corr, cov, sv, Vt, magnitude)
 
 
 def assemble(
@@ -732,7 +772,7 @@ def assemble(
     scored = list(zip(simulated, measured, kept_masks))
     rmse = [score.rmse(*s) for s in scored]
     nrmse = [score.nrmse(*s) for s in scored]
-    values, std, corr, cov, sv, Vt = stats
+    values, std, corr, cov, sv, Vt, magnitude = stats
     names = _parameter_names(free)
     unidentified = (
         _unidentified(sv, Vt, names, threshold)
@@ -741,7 +781,7 @@ def assemble(
             "the Jacobian at the optimum is not finite: the statistics are unavailable"
         ]
     )
-    weak = poorly_determined(values, std, corr, names)
+    weak = poorly_determined(values, std, corr, names, magnitude)
     loss, stop = outcome.loss, outcome.stop
     sound = np.isfinite(loss) and loss > 0 and np.all(np.isfinite(rmse))
     if stop.converged and not sound:
