@@ -302,4 +302,7 @@ def __getattr__(name: str) -> object:
 
 
 def __dir__() -> list[str]:
-    return sorted(set(globals()) | set(_public()) | set(_SUBPACKAGES))
+    # The public API, the subpackages and the module's dunders; not the helpers
+    # this file imports for itself (`ast`, `importlib`, ...).
+    dunders = {n for n in globals() if n.startswith("__")}
+    return sorted(dunders | set(_public()) | set(_SUBPACKAGES))

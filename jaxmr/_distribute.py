@@ -13,6 +13,7 @@ schedules work: placement is data, the partitioning is XLA's.
 
 import equinox as eqx
 import jax
+import jax.core
 import jax.numpy as jnp
 import numpy as np
 from jax.experimental import multihost_utils
@@ -76,6 +77,10 @@ def _place(tree, sharding: NamedSharding):
     own shards, from the same host values; a leaf already so placed is left alone."""
 
     def place(a):
+        if isinstance(a, jax.core.Tracer):
+            # Inside the caller's `jit`, `grad` or `vmap`: ask the compiler for the
+            # placement (a value in a trace has no host copy to split).
+            return jax.lax.with_sharding_constraint(a, sharding)
         if isinstance(a, jax.Array) and a.sharding == sharding:
             return a
         host = np.asarray(a)
@@ -97,6 +102,10 @@ def gather(tree):
     arrays, static = eqx.partition(tree, eqx.is_array)
 
     def whole(a):
+        # A tracer (`sweep` under `grad`, `jit` or `vmap`) is a value inside the
+        # caller's trace, not a spread array: the caller's program places it.
+        if isinstance(a, jax.core.Tracer):
+            return a
         if not isinstance(a, jax.Array) or a.is_fully_addressable:
             return a
         if a.is_fully_replicated:  # a reduction's result: every process holds it

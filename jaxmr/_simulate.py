@@ -11,7 +11,7 @@ from jax.extend.core import Literal as JaxprLiteral
 from jax.sharding import PartitionSpec
 
 from ._channel import ChannelDelay
-from ._current_law import ranged_laws
+from ._current_law import is_law, ranged_laws
 from ._custom_types import ArrayLike, Float, ScalarLike
 from ._damper import Damper, as_damper, fitted_range_in, with_fitted_range
 from ._distribute import batch_mesh, gather, pad, padded_size, spread
@@ -127,6 +127,32 @@ def _check_tables_now(damper: Damper, bounds, device: str = "", current: str = "
                 f"[{law_lo:g}, {law_hi:g}] A (laws are not extrapolated); extend the "
                 "table or keep the current inside it."
             )
+
+
+def _check_laws_now(damper: Damper, bounds, device: str = "", current: str = ""):
+    """Raise now, quoting the input, when a concrete model's current laws break a
+    physical constraint somewhere in concrete current `bounds` (lo, hi) [A or V] (a
+    negative dashpot at -0.5 A, a quadratic law turning negative at 2 A): the
+    runtime check (`checks_over`, traced under jit) can name neither."""
+    hysteresis = damper.hysteresis
+    if bounds is None or not is_concrete(hysteresis):
+        return
+    if not any(is_law(p) for p in jax.tree.leaves(hysteresis, is_leaf=is_law)):
+        return  # plain numbers were checked at construction
+    lo, hi = bounds
+    with jax.ensure_compile_time_eval():
+        checks = hysteresis.checks_over(jnp.asarray(lo), jnp.asarray(hi))
+        failed = [c for c in checks if not bool(c.ok)]
+    if failed:
+        check = failed[0]
+        # The input where it fails (`checks_over` quotes it as its one value).
+        (at,) = check.value.values() if isinstance(check.value, dict) else (lo,)
+        spans = f"is {lo:g}" if lo == hi else f"spans [{lo:g}, {hi:g}]"
+        raise eqx.EquinoxRuntimeError(
+            f"{check.rule}, at an input of {float(at):g} A (or V): `current{current}` "
+            f"{spans} for the model{device}; keep it where the model holds (e.g. the "
+            "range it was fitted on)."
+        )
 
 
 def _concrete_bounds(current: AbstractSignal) -> tuple[float, float] | None:
@@ -428,8 +454,11 @@ def simulate(
     warn_if_float32("jaxmr.simulate", needs=_FLOAT64_NEEDED)
     damper, motion, current, integrator = _prepare(device, motion, current, integrator)
     ts = _check_times(ts)
-    if throw and ranged_laws(damper.hysteresis):
-        _check_tables_now(damper, _concrete_bounds(current))
+    if throw:
+        bounds = _concrete_bounds(current)
+        if ranged_laws(damper.hysteresis):
+            _check_tables_now(damper, bounds)
+        _check_laws_now(damper, bounds)
     if initial_state is not None:
         initial_state = as_float_array(initial_state)
         expected = len(damper.state_names)
@@ -501,6 +530,12 @@ def _items(value, convert, what: str) -> tuple[list, bool]:
         array = as_float_array(value)
         if array.ndim == 1:
             return [as_signal(c) for c in array], True
+        if array.ndim > 1:
+            raise ValueError(
+                "`current` as an array must be 1-D, one constant current per run (a "
+                "grid over the motions comes from `grid=True`; a current that varies "
+                f"in time is a signal such as jaxmr.Sampled), got shape {array.shape}."
+            )
     return [convert(value)], False
 
 
@@ -509,25 +544,23 @@ def _as_batch(items: list, batched: bool, what: str):
     return _stack(items, what) if batched else (items[0], None)
 
 
-def _check_sweep_tables(devices, device_batched, currents, current_batched, grid):
-    """`_check_tables_now` for every (device, current) pair the sweep runs."""
-    ranged = [bool(ranged_laws(d.hysteresis)) for d in devices]
-    if not any(ranged):
-        return
+def _check_sweep_inputs(devices, device_batched, currents, current_batched, grid):
+    """`_check_tables_now` and `_check_laws_now` for every (device, current) pair
+    the sweep runs."""
     bounds = [_concrete_bounds(c) for c in currents]
     zipped = not grid and len(devices) > 1 and len(bounds) > 1
     for j, device in enumerate(devices):
-        if not ranged[j]:
-            continue
+        ranged = bool(ranged_laws(device.hysteresis))
         for k, b in enumerate(bounds):
             if zipped and j != k:
                 continue
-            _check_tables_now(
-                device,
-                b,
+            names = (
                 f" device[{j}]" if device_batched else "",
                 f"[{k}]" if current_batched else "",
             )
+            if ranged:
+                _check_tables_now(device, b, *names)
+            _check_laws_now(device, b, *names)
 
 
 def _index(batched, size, indices):
@@ -711,7 +744,8 @@ def sweep(
     slower than mapping on CPU). With several
     local devices (GPUs, or host devices from
     `XLA_FLAGS=--xla_force_host_platform_device_count=N`) the batch is split across them
-    with `jax.shard_map` when its size divides evenly.
+    (padded to a whole number of runs per device with copies of its last run, which
+    are dropped from the result).
 
     Over constant currents (a 1-D array, or a list of numbers or `Constant`s) with a
     model whose state equation does not depend on the current (the current laws act
@@ -796,7 +830,7 @@ def sweep(
         shape = (lengths.pop(),)
         index = {k: np.arange(shape[0]) for k in batched}
     if throw:
-        _check_sweep_tables(*devices, *currents, grid)
+        _check_sweep_inputs(*devices, *currents, grid)
     shared = _shares_states(devices[0][0], currents, batched, grid, ts.dtype)
     if shared:
         # Solve each (device, motion) pair once; every current rides along whole. With

@@ -226,6 +226,18 @@ def test_array_of_currents_in_simulate_points_to_sweep():
         jaxmr.simulate(bouc_wen(), MOTION, jnp.array([0.0, 1.0]), TS)
 
 
+def test_a_2d_array_of_currents_in_sweep_is_named():
+    # It told the user to "use `sweep`" from inside `sweep`. (jaxmr's own check:
+    # the suite's typechecker answers first in `sweep`.)
+    from jaxmr._signal import as_signal
+    from jaxmr._simulate import _items
+
+    with pytest.raises(ValueError, match=r"must be 1-D, one constant current per run"):
+        _items(jnp.ones((2, 2)), as_signal, "current")
+    with pytest.raises((TypeError, ValueError), match=names("current")):
+        jaxmr.sweep(bouc_wen(), MOTION, jnp.ones((2, 2)), TS)
+
+
 def test_array_of_currents_names_sweep_without_typechecker():
     # jaxmr's own message (the typechecker may answer first in `simulate`).
     from jaxmr._signal import as_signal
@@ -423,6 +435,18 @@ def test_law_checked_over_the_whole_current_range():
         match=r"checked over the input's range\): the exponent `n` must be > 0",
     ):
         jaxmr.simulate(LAW_MODEL, MOTION, steps, TS)
+    # With concrete inputs the message names where the law breaks it and the range
+    # the current covers (it named neither); a sweep names the current's index.
+    with pytest.raises(
+        eqx.EquinoxRuntimeError,
+        match=r"must be > 0, at an input of 0.1 A \(or V\): `current` spans "
+        r"\[0.1, 0.5\] for the model",
+    ):
+        jaxmr.simulate(LAW_MODEL, MOTION, steps, TS)
+    with pytest.raises(
+        eqx.EquinoxRuntimeError, match=r"at an input of 0.2 A .*`current\[1\]` is 0.2"
+    ):
+        jaxmr.sweep(LAW_MODEL, MOTION, [0.5, 0.2], TS)
 
 
 def test_nan_parameter_is_named():

@@ -10,7 +10,8 @@ factorises the small p × p matrix JᵀJ, still one matrix at a time
 guarantee the issue asks for (starts and lanes on every device of a multi-core
 machine finish, under a timeout), whatever factorisation a later step uses. The data
 (12 000 residuals, 3 parameters; 2 starts, or 2 of the 4 problems on each device)
-are those that made the batched QR hang."""
+are those that made the batched QR hang. `sweep` under `jit`, `grad` and `vmap`,
+in one process and on two devices, is checked here too."""
 
 import json
 import os
@@ -251,3 +252,72 @@ def test_a_one_start_fit_splits_its_jacobian_over_two_host_devices(name, tmp_pat
     assert two["step_compilations"] == 1 and one["step_compilations"] == 1
     for key in ("values", "history", "std_errors"):
         np.testing.assert_allclose(two[key], one[key], rtol=1e-9, err_msg=key)
+
+
+def sweep_transformed() -> dict:
+    """{name: array}: a small brake sweep's summed squared torque, and its gradient
+    in the model's γ and the motion's amplitude, eagerly and under `jax.jit`,
+    `jax.grad` and `jax.vmap` (each once failed inside `sweep`'s spreading and
+    gathering of its batch: a tracer has no host copy and no `is_fully_addressable`)."""
+    import equinox as eqx
+    import jax
+    import jax.numpy as jnp
+
+    import jaxmr
+
+    brake = jaxmr.sas_brake_bouc_wen()
+    ts = jnp.linspace(0.0, 0.5, 251)
+    currents = jnp.array([0.0, 0.5, 1.0])
+
+    def energy(gamma, amplitude):
+        model = eqx.tree_at(lambda m: m.gamma, brake, gamma)
+        sol = jaxmr.sweep(
+            model, jaxmr.Sine(amplitude, 2.0), currents, ts,
+            integrator=jaxmr.FixedStep(2),
+        )  # fmt: skip
+        return jnp.sum(sol.force**2)
+
+    gamma, amplitude = jnp.asarray(1.0), jnp.asarray(0.06)
+    h = 1e-6
+    return {
+        "eager": np.array(energy(gamma, amplitude)),
+        "jit": np.array(jax.jit(energy)(gamma, amplitude)),
+        "vmap": np.asarray(
+            jax.vmap(energy, (None, 0))(gamma, jnp.stack([amplitude] * 2))
+        ),
+        "grad": np.asarray(jax.grad(energy, (0, 1))(gamma, amplitude)),
+        "difference": np.array(
+            [
+                (energy(gamma + h, amplitude) - energy(gamma - h, amplitude)) / (2 * h),
+                (
+                    energy(gamma, amplitude + h * 1e-2)
+                    - energy(gamma, amplitude - h * 1e-2)
+                )
+                / (2 * h * 1e-2),
+            ]
+        ),
+    }
+
+
+def _check_sweep_transformed(out: dict):
+    # jit and vmap compute the eager program's operations (rounding apart); the
+    # gradient against central differences of step 1e-6 (γ) and 1e-8 (amplitude
+    # [rad]), whose truncation and rounding errors are below 1e-5 relative here.
+    np.testing.assert_allclose(out["jit"], out["eager"], rtol=1e-12)
+    np.testing.assert_allclose(out["vmap"], [out["eager"]] * 2, rtol=1e-12)
+    np.testing.assert_allclose(out["grad"], out["difference"], rtol=1e-5)
+
+
+def test_sweep_runs_under_jit_grad_and_vmap():
+    _check_sweep_transformed(sweep_transformed())
+
+
+def test_sweep_runs_under_jit_grad_and_vmap_on_two_host_devices():
+    printed = _on_two_devices(
+        "import json\n"
+        "from tests.test_host_devices import sweep_transformed\n"
+        "out = sweep_transformed()\n"
+        "print(json.dumps({k: v.tolist() for k, v in out.items()}))\n"
+    )
+    out = json.loads(printed.strip().splitlines()[-1])
+    _check_sweep_transformed({k: np.asarray(v) for k, v in out.items()})

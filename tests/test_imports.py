@@ -227,3 +227,14 @@ def test_metrics_and_linear_control_moved_with_deprecated_aliases(module):
             old = getattr(jaxmr, name)
         assert old is getattr(home, name), name
         assert name not in jaxmr.__all__
+
+
+def test_dir_lists_the_public_api_and_not_the_init_s_helpers():
+    # `dir(jaxmr)` (tab completion) listed `ast`, `importlib`, `warnings` and
+    # `TYPE_CHECKING`, which `__init__` imports for itself.
+    import jaxmr
+
+    listed = set(dir(jaxmr))
+    assert not listed & {"ast", "importlib", "warnings", "TYPE_CHECKING"}
+    assert set(jaxmr.__all__) <= listed
+    assert {"plot", "data", "__version__"} <= listed

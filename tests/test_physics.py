@@ -52,6 +52,23 @@ def test_bingham_loop_energy_matches_closed_form():
     )
 
 
+def test_energy_per_cycle_keeps_the_period_s_first_sample_in_float32():
+    """F = v = cos(2πt) sampled at 1 kHz over 3 s: the last period dissipates ∫cos²
+    = 0.5 J. In float32 the sample at t = 2 s is stored 1.2e-7 s early, and a
+    window tolerance of 1e-9 of the period dropped it: 0.2 % low (the first
+    interval, where cos² is largest). The trapezoidal rule's own error is 8e-7."""
+    ts = jnp.linspace(0.0, 3.0, 3001, dtype=jnp.float32)
+    assert float(ts[2000]) < 2.0  # the case: the period's first sample rounded early
+    wave = jnp.cos(2 * jnp.pi * ts)
+    sol = jaxmr.Solution(
+        ts=ts, displacement=None, velocity=wave, current=None,
+        effective_current=None, force=wave, states=None,
+        result=jaxmr.RESULTS.successful, num_steps=jnp.asarray(0), state_names=(),
+    )  # fmt: skip
+    energy = jaxmr.metrics.energy_per_cycle(sol, 1.0)
+    np.testing.assert_allclose(float(energy), 0.5, rtol=1e-5)
+
+
 def test_spencer_energy_grows_with_voltage():
     energy, _ = _energies(
         jaxmr.spencer_1997(),

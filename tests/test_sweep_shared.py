@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 import jaxmr
+import jaxmr.plot
 from jaxmr import _simulate
 
 TS = jnp.linspace(0.0, 0.5, 51)
@@ -123,6 +124,12 @@ def test_keep_returns_the_same_force_alone(share, paths, monkeypatch):
     assert dropped == [n for n in FIELDS if n not in ("force", "num_steps")]
     with pytest.raises(ValueError, match="without its states"):
         force.state("z")
+    # What reads a dropped field says so, and how to keep it (`plot.loop` stopped
+    # on an IndexError).
+    with pytest.raises(ValueError, match=r"ts, displacement.*sweep\(\.\.\., keep=\)"):
+        jaxmr.plot.loop(force)
+    with pytest.raises(ValueError, match=r"keep="):
+        jaxmr.metrics.energy_per_cycle(force, 0.5)
 
 
 def test_keep_names_unknown_fields():

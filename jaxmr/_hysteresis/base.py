@@ -129,9 +129,14 @@ class AbstractHysteresis(eqx.Module):
             lambda i: jnp.stack([jnp.all(check.ok) for check in self.at(i).checks()])
         )(grid)
         where = f"{name} (its current laws checked over the input's range)"
-        # No value is quoted: a law's value differs from one current to the next.
+        # The value quoted is the input where the rule fails (the one nearest the
+        # range's low end), not the law's value there: a user sets the current.
         return [
-            Check(jnp.all(oks[:, k]), f"{where}: {rule}")
+            Check(
+                jnp.all(oks[:, k]),
+                f"{where}: {rule}",
+                {"at the input [A or V]": grid[jnp.argmin(oks[:, k])]},
+            )
             for k, rule in enumerate(rules)
         ]
 

@@ -78,6 +78,12 @@ def loop(
     if ax is None:
         _, ax = plt.subplots(figsize=(5, 4), layout="constrained")
     field = _AXES[against]
+    dropped = [n for n in ("ts", "force", field) if getattr(solution, n) is None]
+    if dropped:
+        raise ValueError(
+            f"plot.loop needs the solution's {', '.join(dropped)}, which the sweep "
+            f"did not keep: pass them in `sweep(..., keep=)`."
+        )
     x_label, v_label, force_label, scale = _UNITS[units]
     xs = np.asarray(getattr(solution, field))
     ts = np.asarray(solution.ts)
