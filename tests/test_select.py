@@ -422,6 +422,21 @@ def test_selected_model_is_never_worse_than_its_template_fitted_alone():
     assert selection.result.converged == ended[selection.kept].converged
 
 
+def test_select_model_takes_several_starts():
+    """`starts` reaches every fit of the selection: the screening, the folds and the
+    template's refit (it crashed at the end, after all the work: the chained refit's
+    `starts=None` met the user's `starts` twice). The model returned is never worse
+    than the template fitted alone from as many starts."""
+    runs = dahl_runs((4.0, 5.0, 6.0), (3.0, 3.0, 3.0))
+    options = dict(max_steps=6, statistics_refinement=1, progress=False)
+    selection = jaxmr.select_model(
+        {"dahl": dahl_guess()}, runs, finalists=1, starts=2, **options
+    )
+    plain = jaxmr.fit(dahl_guess(), runs, starts=2, **options)
+    assert selection.name == "dahl"
+    assert selection.result.loss <= plain.loss
+
+
 def _bug(train):
     return train.model  # a list has no `model`: a programming error
 

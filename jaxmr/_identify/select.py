@@ -1149,7 +1149,8 @@ def select_model(
     def refit(stage, model, **more):
         report(FitStarted(best.name, stage, len(everything)))
         start = time.perf_counter()
-        result = fit(model, everything, **options, **kwargs, **more)
+        # `more` overrides the user's options (the chained refit runs one start).
+        result = fit(model, everything, **options, **{**kwargs, **more})
         seconds = time.perf_counter() - start
         median = float(np.median(result.nrmse))
         report(_ended(best.name, stage, seconds, result, median, float("nan")))
