@@ -244,8 +244,8 @@ class FitResult:
 
     def sample(self, n: int, key: jax.Array) -> eqx.Module:
         """`n` models drawn from the fit's uncertainty: the parameters jointly normal
-        with `covariance` (log-normal, to first order the same, for those with a
-        positive value, so that a positive parameter stays positive); every array of
+        with `covariance` (log-normal with the same means and covariance for those
+        with a positive value, so that a positive parameter stays positive); every array of
         the returned model gains a leading axis of size `n` (a batch to `vmap` over,
         e.g. for `jaxmr.tune(..., samples=...)`).
 
@@ -270,13 +270,22 @@ class FitResult:
                 "(jaxmr.Fixed) and refit before sampling."
             )
         log = values > 0
-        # In log variables, d log v = dv / v: the covariance scales by 1/v.
+        # Log variables with the fitted values as means and the covariance as
+        # covariance (a multivariate log-normal's moments): cov(log a, log b) =
+        # log(1 + C_ab / (a b)), cov(log a, b) = C_ab / a. For a small relative error
+        # that is the linearised C_ab / (a b); for a large one (a positive parameter
+        # fitted to about 0, whose error is far beyond its value) the plain
+        # linearisation gave log-normals of absurd spread (exp of ±1e6).
         scale = np.where(log, 1.0 / np.where(log, values, 1.0), 1.0)
-        cov = np.asarray(self.covariance, dtype=float) * np.outer(scale, scale)
+        relative = np.asarray(self.covariance, dtype=float) * np.outer(scale, scale)
+        both = np.outer(log, log)
+        cov = np.where(both, np.log1p(np.maximum(relative, -1 + 1e-12)), relative)
         w, V = np.linalg.eigh((cov + cov.T) / 2)
         root = V * np.sqrt(np.maximum(w, 0.0))
         normal = np.asarray(jax.random.normal(key, (n, values.size)))
-        centre = np.where(log, np.log(np.where(log, values, 1.0)), values)
+        centre = np.where(
+            log, np.log(np.where(log, values, 1.0)) - np.diag(cov) / 2, values
+        )
         t = centre + normal @ root.T
         draws = np.where(log, np.exp(t), t)
         # The free parameters are the model's leaves where `_free_mask` is True, in
