@@ -77,6 +77,7 @@ import numpy as np  # noqa: E402
 # as they are at start-up: a run takes an hour, and the files may change meanwhile.
 from jaxmr import fit, record_nrmse  # noqa: E402
 from jaxmr._identify.select import (  # noqa: E402
+    AUTO_STARTS,
     MIN_FINALISTS,
     SCREEN_STEPS,
     _complexity as _select_complexity,
@@ -147,8 +148,9 @@ def _summary(result, seconds) -> dict:
     }
 
 
-def run_auto(d, max_steps) -> dict:
-    """`jaxmr fit --model auto` on the training records (`_select`'s call)."""
+def run_auto(d, max_steps, starts=AUTO_STARTS) -> dict:
+    """`jaxmr fit --model auto` on the training records (`_select`'s call), with
+    its default starts per fit unless `starts` says otherwise."""
     candidates = auto_candidates(d.train)
     lines = []
     start = time.perf_counter()
@@ -160,11 +162,13 @@ def run_auto(d, max_steps) -> dict:
         finalists=FINALISTS,
         max_steps=max_steps,
         log=lines.append,
+        **({"starts": starts} if starts > 1 else {}),
     )
     seconds = time.perf_counter() - start
     held_out = _scores(selection.model, d.test, d.test_discard, d.test_smoothing)
     out = {
         "candidates": candidates,
+        "starts": starts,
         "choice": selection.name,
         "seconds": seconds,
         "held_out_nrmse": held_out,
@@ -280,7 +284,9 @@ def run_dataset(d, args) -> dict:
     )
     out = {"summary": d.summary()}
     if not args.plain_only:
-        out["auto"] = run_auto(d, args.max_steps)
+        out["auto"] = run_auto(d, args.max_steps, args.starts)
+    if args.auto_only:
+        return out
     names = family_list(d.train)
     out["plain"] = {n: run_plain(d, n, args.max_steps) for n in names}
     best = min(names, key=lambda n: out["plain"][n]["held_out_median_nrmse"])
@@ -678,6 +684,7 @@ def _run_separately(args) -> None:
         )
     )
     options = [f"--max-steps={args.max_steps}", f"--screen-steps={args.screen_steps}"]
+    options += [f"--starts={args.starts}"]
     options += [flag for flag in ("quick", "small", "no_cv") if getattr(args, flag)]
     options = [o if o.startswith("--") else "--" + o.replace("_", "-") for o in options]
     with tempfile.TemporaryDirectory() as folder:
@@ -711,6 +718,18 @@ def main():
         action="store_true",
         help="only the plain fits (the yardstick of screening_choice.py): no "
         "selection, no inner folds, no analysis",
+    )
+    parser.add_argument(
+        "--auto-only",
+        action="store_true",
+        help="only the selection (`starts_choice.py`): no plain fits, no inner "
+        "folds, no analysis",
+    )
+    parser.add_argument(
+        "--starts",
+        type=int,
+        default=AUTO_STARTS,
+        help="starts per fit of the selection (default: jaxmr fit's)",
     )
     parser.add_argument("--max-steps", type=int, default=MAX_STEPS)
     parser.add_argument("--screen-steps", type=int, default=SCREEN_STEPS)
@@ -781,7 +800,7 @@ def main():
     for d in data:
         figures["datasets"][d.name] = run_dataset(d, args)
         save()
-    if args.plain_only:
+    if args.plain_only or args.auto_only:
         write_figures(figures, args.json)
         return
     if not args.no_cv:

@@ -253,10 +253,12 @@ def test_help_names_agree_with_the_package():
     """The command line's own lists of the model templates and datasets (it cannot
     import them for --help without JAX) are the package's."""
     from jaxmr._cli.convert import DATASET_NAMES
-    from jaxmr._cli.fit import TEMPLATE_NAMES
+    from jaxmr._cli.fit import AUTO_STARTS, TEMPLATE_NAMES
+    from jaxmr._identify import select
 
     assert TEMPLATE_NAMES == tuple(jaxmr.templates.MODEL_TEMPLATES)
     assert DATASET_NAMES == jaxmr.data.DATASETS
+    assert AUTO_STARTS == select.AUTO_STARTS
 
 
 def test_public_names_are_imported_on_first_use():

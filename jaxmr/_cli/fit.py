@@ -39,6 +39,9 @@ from .files import (
 )
 
 AUTO = "auto"
+# Starts per fit with --model auto: `jaxmr._identify.select.AUTO_STARTS` (that module
+# imports JAX, which `jaxmr fit --help` does not; tests/test_cli.py checks they agree).
+AUTO_STARTS = 1
 # How `jaxmr fit --channel-delay` names a model seen through a fitted channel delay.
 DELAY_SUFFIX = " + channel delay"
 # The names of `jaxmr.templates.MODEL_TEMPLATES`, for the help (that module imports
@@ -159,9 +162,10 @@ def add_parser(subparsers) -> None:
     command.add_argument(
         "--starts",
         type=int,
-        default=1,
+        default=None,
         metavar="N",
-        help="starts per fit: the data-scaled guess plus N-1 random ones (default 1)",
+        help="starts per fit: the data-scaled guess plus N-1 random ones (default "
+        f"1; with --model auto {AUTO_STARTS}, chosen by benchmarks/starts_choice.py)",
     )
     command.add_argument("--accept-units", action="store_true", help=ACCEPT_UNITS_HELP)
     command.add_argument("files", nargs="+", metavar="FILE", help="CSV experiments")
@@ -255,6 +259,8 @@ def _check_options(args: argparse.Namespace) -> None:
             f"{', '.join(TEMPLATE_NAMES)}, or {AUTO}"
         )
     finalists = 1 if args.finalists is None else args.finalists
+    if args.starts is None:
+        args.starts = AUTO_STARTS if args.model == AUTO else 1
     if args.max_steps < 1 or args.starts < 1 or finalists < 1:
         raise CLIError("--max-steps, --starts and --finalists must be at least 1")
     if args.model != AUTO:

@@ -369,6 +369,9 @@ SCREEN_DURATION = 1.0  # s
 SCREEN_STEPS = 100
 SCREEN_KEEP_RATIO = 1.5
 MIN_FINALISTS = 2
+# Starts per fit of `jaxmr fit --model auto` (its screening, folds and refits):
+# chosen by `benchmarks/starts_choice.py` on the choice datasets.
+AUTO_STARTS = 1
 
 
 def screening_end(e, discard: float = 0.0) -> float:
