@@ -120,6 +120,9 @@ BENCHMARKS = (
     Benchmark("export_c", "export_c.py"),
     Benchmark("held_out_currents", "held_out_currents.py"),
     Benchmark("screening_choice", "screening_choice.py"),
+    Benchmark(
+        "starts_choice", "starts_choice.py", quick=("--datasets", "sim_sas_brake_dahl")
+    ),
     Benchmark("trust_region_choice", "trust_region_choice.py"),
     Benchmark(
         "fit_each_scaling",
