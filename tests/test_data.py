@@ -670,6 +670,7 @@ def test_a_velocity_differenced_from_a_noisy_displacement_is_warned():
     with warnings.catch_warnings():
         warnings.simplefilter("error", jd.DataWarning)
         jd.Experiment.from_arrays(t, clean)
+        jd.Experiment.from_arrays(t, 0.05 * t)  # a ramp: constant velocity, no noise
         jd.Experiment.from_arrays(t, clean + 2e-6 * rng.standard_normal(t.size))
         noisy = clean + 20e-6 * rng.standard_normal(t.size)
         jd.Experiment.from_arrays(t, noisy, v=np.gradient(clean, t))

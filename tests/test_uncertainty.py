@@ -176,9 +176,10 @@ def test_sample_draws_from_the_covariance(refits):
     np.testing.assert_allclose(np.std(logs, axis=0), expected, rtol=0.05)
     # A positive parameter with an error far beyond its value (fitted to about 0,
     # as shear-thinning Spencer's e0 at the plain Spencer limit): its draws are
-    # finite, with the fitted mean and standard deviation (they were exp(±1e6)).
-    # The log-normal of 1000 % relative error is heavy-tailed: its sample moments
-    # from 20 000 draws scatter by some 10-30 %, hence the 50 % tolerance.
+    # finite, with the fitted value as median and the fitted standard deviation
+    # (they were exp(±1e6)). The log-normal of 1000 % relative error is
+    # heavy-tailed: its sample standard deviation from 20 000 draws scatters by
+    # some 10-30 %, hence the 50 % tolerance (the median's by about 2 %).
     wide = result.covariance.copy()
     wide[2, 2] = (10 * result.values[2]) ** 2
     wide[2, :2] = wide[:2, 2] = 0.0
@@ -187,7 +188,7 @@ def test_sample_draws_from_the_covariance(refits):
     )
     rho = np.asarray(draws.rho)
     assert np.all(np.isfinite(rho)) and np.all(rho > 0)
-    np.testing.assert_allclose(np.mean(rho), result.values[2], rtol=0.5)
+    np.testing.assert_allclose(np.median(rho), result.values[2], rtol=0.1)
     np.testing.assert_allclose(np.std(rho), 10 * result.values[2], rtol=0.5)
 
 

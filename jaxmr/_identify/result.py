@@ -244,8 +244,9 @@ class FitResult:
 
     def sample(self, n: int, key: jax.Array) -> eqx.Module:
         """`n` models drawn from the fit's uncertainty: the parameters jointly normal
-        with `covariance` (log-normal with the same means and covariance for those
-        with a positive value, so that a positive parameter stays positive); every array of
+        with `covariance` (log-normal with the fitted value as median and the same
+        covariance for those with a positive value, so that a positive parameter
+        stays positive); every array of
         the returned model gains a leading axis of size `n` (a batch to `vmap` over,
         e.g. for `jaxmr.tune(..., samples=...)`).
 
@@ -270,22 +271,29 @@ class FitResult:
                 "(jaxmr.Fixed) and refit before sampling."
             )
         log = values > 0
-        # Log variables with the fitted values as means and the covariance as
-        # covariance (a multivariate log-normal's moments): cov(log a, log b) =
-        # log(1 + C_ab / (a b)), cov(log a, b) = C_ab / a. For a small relative error
-        # that is the linearised C_ab / (a b); for a large one (a positive parameter
-        # fitted to about 0, whose error is far beyond its value) the plain
-        # linearisation gave log-normals of absurd spread (exp of ±1e6).
+        # Log variables whose medians are the fitted values and whose draws have
+        # the fit's covariance (a multivariate log-normal's moments): with
+        # R = C / (a b) and d the log variances, d solves e^d (e^d - 1) = R_aa,
+        # cov(log a, log b) = log(1 + R_ab e^{-(d_a + d_b)/2}) and cov(log a, b) =
+        # C_ab e^{-d_a/2} / a. For a small relative error that is the linearised
+        # C_ab / (a b); for a large one (a positive parameter fitted to about 0,
+        # whose error is far beyond its value) the linearisation gave log-normals
+        # of absurd spread (exp of ±1e6).
         scale = np.where(log, 1.0 / np.where(log, values, 1.0), 1.0)
         relative = np.asarray(self.covariance, dtype=float) * np.outer(scale, scale)
+        d = np.where(
+            log,
+            np.log((1 + np.sqrt(1 + 4 * np.maximum(np.diag(relative), 0.0))) / 2),
+            0.0,
+        )
+        shrink = np.where(log, np.exp(-d / 2), 1.0)
+        cov = relative * np.outer(shrink, shrink)
         both = np.outer(log, log)
-        cov = np.where(both, np.log1p(np.maximum(relative, -1 + 1e-12)), relative)
+        cov = np.where(both, np.log1p(np.maximum(cov, -1 + 1e-12)), cov)
         w, V = np.linalg.eigh((cov + cov.T) / 2)
         root = V * np.sqrt(np.maximum(w, 0.0))
         normal = np.asarray(jax.random.normal(key, (n, values.size)))
-        centre = np.where(
-            log, np.log(np.where(log, values, 1.0)) - np.diag(cov) / 2, values
-        )
+        centre = np.where(log, np.log(np.where(log, values, 1.0)), values)
         t = centre + normal @ root.T
         draws = np.where(log, np.exp(t), t)
         # The free parameters are the model's leaves where `_free_mask` is True, in

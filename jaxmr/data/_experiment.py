@@ -261,7 +261,7 @@ def differenced_noise(t: np.ndarray, x: np.ndarray, v: np.ndarray) -> float:
     third = np.diff(x, 3)
     sigma = float(np.median(np.abs(third))) / 0.6745 / np.sqrt(20.0)
     h = float(np.median(np.diff(t)))
-    scale = _rms(v - np.mean(v))
+    scale = _rms(v)
     return sigma / (np.sqrt(2.0) * h) / scale if scale > 0 and h > 0 else 0.0
 
 
