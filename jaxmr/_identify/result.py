@@ -128,10 +128,10 @@ class FitResult:
       matrices (covariance in the product of the two parameters' units; NaN in the
       rows and columns of a parameter with an infinite error).
     - `singular_values`: of the Jacobian with columns scaled by the parameter values
-      (relative sensitivities), largest first; a parameter of small effect (a
-      force offset fitted to about 0) by the value at which it would move the
-      force by 1 % of the model's largest term where that is larger, so that
-      it is neither "not identified" nor "poorly determined" for being small.
+      (relative sensitivities), largest first. A parameter of small effect (a force
+      offset fitted to about 0) is scaled instead by the value at which it would
+      move the force by 1 % of the model's largest term, where that is larger: it
+      is then neither "not identified" nor "poorly determined" for being small.
     - `unidentified`: descriptions of parameter combinations the data do not determine
       (empty when all are identified).
     - `poorly_determined`: warnings from those errors, each named once: one per group
@@ -534,11 +534,11 @@ class Statistics(NamedTuple):
     """Singular values of the Jacobian with columns scaled by the parameters'
     `magnitude`, largest first."""
     Vt: np.ndarray
+    """Its right singular vectors (rows)."""
     magnitude: np.ndarray
     """The larger of |value| and the value at which the parameter would move the
     force by `EFFECT_FLOOR` of the model's largest term (`magnitudes`): what its
     errors are relative to."""
-    """Its right singular vectors (rows)."""
 
 
 def statistics(residuals_fn, free, static, data, extra, groups, errors=None):
