@@ -58,7 +58,10 @@ def _number(model, name: str) -> float:
         raise ValueError(
             f"`{name}` of the {type(model).__name__} depends on the current "
             f"({type(value).__name__}); OpenSees' materials have constant parameters. "
-            "Convert the model at one current: `to_opensees(model.at(current))`."
+            "Convert the model at one current: `to_opensees(model.at(current))` (a "
+            "dashpot or force offset at that current has no counterpart either: put "
+            "a Viscous material in Parallel in OpenSees, and convert with them at "
+            "0)."
         )
     array = np.asarray(value, dtype=np.float64)
     if array.shape != ():

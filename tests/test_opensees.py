@@ -242,7 +242,7 @@ def test_constant_laws_and_fitting_wrappers_are_numbers():
             lambda: jaxmr.sas_brake_bouc_wen(),
             {},
             r"of the BoucWen depends on the current \(LinearLaw\).*"
-            r"model\.at\(current\)",
+            r"model\.at\(current\)\)` \(a dashpot .* Viscous material in Parallel",
         ),
         (
             lambda: jaxmr.BoucWen(alpha=1.0, c0=0.1, A=1.0, beta=1.0, gamma=1.0, n=1.0),
