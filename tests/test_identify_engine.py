@@ -623,3 +623,20 @@ def test_a_step_evaluates_its_trial_point_once():
     # Some steps were rejected (the best loss stayed), and some accepted.
     assert len(set(losses)) < len(losses) and len(set(losses)) > 2, losses
     assert len(calls) == 8, len(calls)
+
+
+def test_an_experiment_shorter_than_the_parameters_is_named():
+    # Each experiment's normalised error counts equally: a 3-sample cut beside a
+    # whole test would weigh like one. `fit` (and each problem of `fit_each`)
+    # names it instead of fitting.
+    from .helpers import dahl_guess, dahl_runs
+
+    whole, other = dahl_runs((4.0, 5.0), (3.0, 3.0))
+    cut = SimpleNamespace(**vars(other))
+    for name in ("t", "x", "v", "current", "force"):
+        setattr(cut, name, getattr(other, name)[:3])
+    cut.name = "cut"
+    with pytest.raises(
+        ValueError, match=r"no more samples than the 3 free .*'cut' \(3\)"
+    ):
+        jaxmr.fit(dahl_guess(), [whole, cut], progress=False)

@@ -255,3 +255,11 @@ def test_fit_system_errors():
         fit_system(system, [])
     with pytest.raises(ValueError, match="nothing to fit"):
         fit_system(jax.tree.map(jaxmr.Fixed, unwrap(system)), record)
+    # A record of fewer samples than free parameters would weigh like a whole one
+    # (each record's normalised error counts equally): named, not fitted.
+    two = _benchmark_start(gamma=800.0, beta=-500.0, A=2e4)
+    short = _record(ts=np.arange(3) / FS, measured=np.arange(3.0), name="cut")
+    with pytest.raises(
+        ValueError, match=r"no more samples than the 3 free .*'cut' \(3\)"
+    ):
+        fit_system(two, [_record(), short])

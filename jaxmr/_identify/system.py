@@ -33,7 +33,7 @@ from .._parameter import fitted_form, free_filter, unwrap
 from .._signal import AbstractSignal, _is_uniform, as_signal
 from .._systems.base import AbstractSystem
 from .data import per_experiment
-from .fitting import warn_if_float32
+from .fitting import check_record_lengths, warn_if_float32
 from .result import FitResult, assemble, statistics
 from .solver import (
     FastLevenbergMarquardt,
@@ -401,6 +401,12 @@ def fit_system(
     free, static = eqx.partition(system, free_filter(system))
     if not jax.tree.leaves(free):
         raise ValueError("nothing to fit: every parameter of `system` is Fixed.")
+    check_record_lengths(
+        data.names,
+        [int(c) for c in np.sum(np.asarray(data.mask) > 0, axis=1)],
+        sum(int(np.size(leaf)) for leaf in jax.tree.leaves(free)),
+        "record",
+    )
     sim = _Simulation(
         controller=_as_controller(controller),
         reference=unwrap(system),
