@@ -169,6 +169,12 @@ def test_fit_each_fits_independent_runs_in_one_batch():
         assert abs(values[".rho"] / rho - 1) < 0.02, values
         assert abs(values[".k_w"] / k_w - 1) < 0.02, values
         assert result.nrmse[0] < 0.013
+        # Each run's own history, up to its own stop (it was the batch's best loss
+        # at every step, as long as the slowest run's).
+        assert result.history[-1] == result.loss
+        assert len(result.history) == result.num_steps
+        assert np.all(np.diff(result.history) <= 0)
+    assert len({len(r.history) for r in results}) > 1  # the runs stop apart here
     # One start per experiment (here all the same): the same compiled batch, the
     # same results, exactly.
     again = jaxmr.fit_each([dahl_guess()] * 4, dahl_runs(rhos, k_ws), **options)

@@ -773,7 +773,8 @@ def iterate(
     a `column_mesh` for a batch of one, its arrays whole on each of its devices.
 
     Returns the best ys and one `Outcome` per member (its best loss, the history of
-    the batch's best loss, the steps taken, its `StopReason`).
+    the batch's best loss (of its own, for independent problems: `data_axis` 0),
+    the steps taken, its `StopReason`).
     """
     if first is None:
         dynamic, static_state = eqx.partition(
@@ -785,6 +786,7 @@ def iterate(
     best_loss = np.full(n, np.inf)
     best_y = ys
     history, last_improvement = [], np.zeros(n, dtype=int)
+    own = []  # every member's best loss after each step
     accepted_since = np.zeros(n, dtype=int)
     reference = np.full(n, np.inf)
     converged = np.zeros(n, dtype=bool)
@@ -826,6 +828,7 @@ def iterate(
             last_improvement = np.where(improved, k, last_improvement)
             accepted_since = np.where(improved, 0, accepted_since + better)
             history.append(float(np.min(best_loss)))
+            own.append(best_loss.copy())
             report(k, float(np.min(best_loss)))
             failed |= active & bad
             converged |= active & done & ~bad
@@ -854,8 +857,15 @@ def iterate(
             return StopReason.STALLED
         return StopReason.MAX_STEPS
 
+    def history_of(j) -> tuple[float, ...]:
+        # Starts of one fit share the batch's best; independent problems
+        # (`fit_each`: the data batched too) each have their own, up to their stop.
+        if data_axis is None:
+            return tuple(history)
+        return tuple(float(losses[j]) for losses in own[: max(int(steps[j]), 1)])
+
     return best_y, [
-        Outcome(float(best_loss[j]), tuple(history), int(steps[j]), why(j))
+        Outcome(float(best_loss[j]), history_of(j), int(steps[j]), why(j))
         for j in range(n)
     ]
 
