@@ -484,6 +484,9 @@ def fit_each(
     `jaxmr.devices.configure_cpu`). The problems run
     16 at a time on each device, so each one's result is the same bits whatever the
     number of problems, devices or processes (with at least 16 problems per device).
+    The solver's column scale is the first problem's, for all: problems whose
+    forces differ by orders of magnitude (a 1000-fold one placed second stalled)
+    are better fitted in separate calls or with `fit`.
 
     Several processes (hosts, or one process per GPU): start each with
     `jax.distributed.initialize()` and make the same call with the same experiments
@@ -495,7 +498,12 @@ def fit_each(
     sequence of models of one structure, one start per experiment (their free
     values; `Fixed` values are the first model's).
 
-    **Returns:** one `FitResult` per experiment, in order.
+    **Returns:** one `FitResult` per experiment, in order; each `history` is that
+    problem's own best loss up to its own stop.
+
+    **Raises:** `ValueError` for the whole call, naming the experiment, where one
+    cannot be fitted at all (no force to fit: all zero or constant; no more scored
+    samples than free parameters): drop it and call again.
     """
     warn_if_float32("jaxmr.fit_each")
     check_budget(max_steps, patience)
