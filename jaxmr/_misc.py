@@ -57,9 +57,10 @@ def as_float_array(x: ArrayLike) -> Array:
     # A host value is converted in NumPy: see `to_device`. NumPy would read the text
     # "2000" as a number; a string here is a mistake (a value read from a file and
     # not converted), so it is named rather than taken.
-    if isinstance(x, (str, bytes)) or np.asarray(x).dtype.kind in "USO":
+    array = np.asarray(x)  # one conversion, checked, then cast
+    if array.dtype.kind in "USO":
         raise TypeError(f"expected a number or an array of numbers, got {x!r}.")
-    return to_device(np.asarray(x, dtype=default_float()))
+    return to_device(array.astype(default_float(), copy=False))
 
 
 def abs_pow(z: Array, p: Array) -> Array:
