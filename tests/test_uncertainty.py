@@ -227,6 +227,36 @@ def test_a_well_determined_fit_raises_no_warning():
     assert np.all(result.std_errors / result.values < 0.1), result.table()
     assert result.poorly_determined == () and result.unidentified == (), str(result)
     assert "WARNING" not in str(result)
+    assert result.poor_fit is None and "explains little" not in result.outcome
+
+
+def test_a_converged_fit_of_noise_says_it_explains_little():
+    """The same fit to a force that is noise (an unconnected channel) converges, at
+    the noise floor, with NRMSE about 1 on every test: its verdict still starts
+    with "converged" (it is at a minimum) and then names each test the model
+    explains little of (NRMSE above 0.7), as `poor_fit` does."""
+    truth = jaxmr.Dahl(
+        k_x=jaxmr.LinearLaw(800.0, 1500.0),
+        k_w=jaxmr.LinearLaw(150.0, 600.0),
+        rho=800.0,
+    )
+    tests = three_currents(truth, seed=3)
+    rng = np.random.default_rng(4)
+    for test in tests:
+        test.force = 100.0 * rng.standard_normal(test.force.size)
+    P = jaxmr.Positive
+    start = jaxmr.Dahl(
+        k_x=jaxmr.LinearLaw(P(700.0), P(1800.0)),
+        k_w=jaxmr.LinearLaw(P(180.0), P(500.0)),
+        rho=P(600.0),
+    )
+    result = jaxmr.fit(start, tests, integrator=POLICY, progress=False)
+    assert np.all(result.nrmse > 0.7), result.nrmse
+    assert result.poor_fit is not None
+    for test in tests:
+        assert f"{test.name} (NRMSE" in result.poor_fit
+    assert result.outcome.endswith(result.poor_fit), result.outcome
+    assert "explains little" in str(result)
 
 
 def test_an_offset_fitted_to_about_zero_raises_no_warning():

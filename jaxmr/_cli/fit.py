@@ -679,6 +679,7 @@ def _fit_report(name, files, experiments, result, elapsed, selection, warnings) 
         "loss": _json_number(result.loss),
         "unidentified": list(result.unidentified),
         "poorly_determined": list(result.poorly_determined),
+        "poor_fit": result.poor_fit,
         "interrupted": bool(result.interrupted),
         "fit_time_s": round(elapsed, 3),
     }

@@ -24,6 +24,12 @@ MAX_CORRELATION = 0.99
 # record has five parameters in one near-null direction, each known to 0.06 % or
 # better: nothing a user should fix.
 MAX_GROUP_RELATIVE_ERROR = 0.1
+# A fit whose NRMSE on an experiment exceeds this explains under half of that force's
+# variance (1 - 0.7² = 0.51): a converged fit of the wrong channel, a force in other
+# units than the motion's, pure noise or a motion that is not the device's is
+# "converged" all the same, and says so (`FitResult.poor_fit`). The UTFSM, NEES and
+# simulated fits of every default candidate stay below 0.3.
+POOR_FIT_NRMSE = 0.7
 # A parameter whose whole effect on the force is small (an offset or an accumulator
 # stiffness fitted to about 0 on data that need none) has errors large against its
 # value and still leaves the force determined. Errors are judged relative to each
@@ -146,7 +152,9 @@ class FitResult:
     - `num_steps`; `stop`, why it stopped (a `StopReason`; `reason`: the same in
       words); `converged`: `stop.converged` (the solver's test or stalled progress,
       with a finite loss above 0) and every combination identified; `outcome`: that
-      verdict in words.
+      verdict in words, followed by `poor_fit` where that is not None.
+    - `poor_fit`: the experiments whose NRMSE exceeds 0.7 (the model explains under
+      half of their force's variance), named with what to check, or None.
     - `interrupted`: whether Ctrl-C or the caller's `stop` flag stopped it.
     - `diverged_at`: per experiment, the time [s] (on the experiment's own `t`) from
       which its simulation at the fitted parameters diverged: the model's state left
@@ -195,6 +203,26 @@ class FitResult:
         )
 
     @property
+    def poor_fit(self) -> str | None:
+        """The experiments the fitted model explains little of, in words (NRMSE above
+        `POOR_FIT_NRMSE`, 0.7: under half of the force's variance), with what to
+        check; None where it explains every one. A converged fit can be a poor one:
+        converged says the fit is at a minimum, not that the model fits."""
+        nrmse = np.asarray(self.nrmse, float)
+        poor = [
+            f"{name} (NRMSE {e:.3g})"
+            for name, e in zip(self.experiment_names, nrmse)
+            if np.isfinite(e) and e > POOR_FIT_NRMSE
+        ]
+        if not poor:
+            return None
+        return (
+            f"the model explains little of the force on {', '.join(poor)}: check "
+            "that force, motion and input are the device's channels, in SI units, "
+            "with one sign convention, and that the record is not noise"
+        )
+
+    @property
     def reason(self) -> str:
         """Why the fit stopped, in words (`StopReason.sentence`)."""
         return self.stop.sentence(self.num_steps)
@@ -210,12 +238,16 @@ class FitResult:
         (the one wording: the summary, `score_table`, `select_model`'s log and
         `jaxmr fit`'s report use it). Progress stalled at the noise floor counts as
         converged, so its words are not "stalled". Converged means at a minimum, the
-        one the start led to: other starts may find a lower one."""
+        one the start led to: other starts may find a lower one, and it need not fit:
+        where the model explains little of an experiment's force, `poor_fit` follows
+        the verdict."""
         stop = self.stop
         if self.converged:
             if stop is StopReason.STALLED:
-                return "converged: no relative improvement left (the noise floor)"
-            return stop.message  # "converged (Levenberg–Marquardt's tolerance met)"
+                verdict = "converged: no relative improvement left (the noise floor)"
+            else:  # "converged (Levenberg–Marquardt's tolerance met)"
+                verdict = stop.message
+            return self._poorly(verdict)
         if stop in (StopReason.INTERRUPTED, StopReason.DEGENERATE):
             verdict = self.reason  # "interrupted at step ...", "not converged: ..."
         elif stop.converged:  # stopped well, not identified
@@ -227,7 +259,13 @@ class FitResult:
             verdict = f"not converged: {self.reason}"  # failed, or max_steps reached
         # A diverged experiment is never converged (its rmse is inf): say where.
         divergence = self.divergence
-        return verdict if divergence is None else f"{verdict}; {divergence}"
+        if divergence is not None:
+            return f"{verdict}; {divergence}"
+        return self._poorly(verdict)
+
+    def _poorly(self, verdict: str) -> str:
+        poor = self.poor_fit
+        return verdict if poor is None else f"{verdict}; {poor}"
 
     @property
     def interrupted(self) -> bool:
