@@ -17,7 +17,7 @@ from .._damper import Damper, with_fitted_range
 from .._distribute import batch_mesh, gather, replicate, spread, to_host
 from .._hysteresis import AbstractHysteresis
 from .._integrate import FixedStep
-from .._misc import warn_if_float32
+from .._misc import to_device, warn_if_float32
 from .._parameter import fitted_form, free_filter, unwrap
 from .data import (
     FitData,
@@ -43,6 +43,7 @@ from .solver import (
     check_budget,
     column_mesh,
     column_scale,
+    column_scales,
     divide,
     iterate,
     multiply,
@@ -64,6 +65,18 @@ def _scaled_residuals(y, static, data, scale):
 
 def _guarded_scaled_residuals(y, static, data, scale):
     return traced_once(guarded_residuals, multiply(y, scale), static, data, None)
+
+
+def _each_scaled_residuals(y, static, data_and_scale, extra):
+    # `fit_each`'s: each problem carries its own column scale beside its data (both
+    # batched on axis 0), where `extra` is shared by the batch.
+    data, scale = data_and_scale
+    return _scaled_residuals(y, static, data, scale)
+
+
+def _each_guarded_scaled_residuals(y, static, data_and_scale, extra):
+    data, scale = data_and_scale
+    return _guarded_scaled_residuals(y, static, data, scale)
 
 
 def _fit_residuals(inside: bool):
@@ -484,9 +497,9 @@ def fit_each(
     `jaxmr.devices.configure_cpu`). The problems run
     16 at a time on each device, so each one's result is the same bits whatever the
     number of problems, devices or processes (with at least 16 problems per device).
-    The solver's column scale is the first problem's, for all: problems whose
-    forces differ by orders of magnitude (a 1000-fold one placed second stalled)
-    are better fitted in separate calls or with `fit`.
+    Each problem's variables are scaled by its own Jacobian at its start, as `fit`
+    scales them, so problems whose forces differ by orders of magnitude share a
+    batch.
 
     Several processes (hosts, or one process per GPU): start each with
     `jax.distributed.initialize()` and make the same call with the same experiments
@@ -553,12 +566,14 @@ def fit_each(
     ys = spread(ys, mesh)
     if solver is None:
         solver = FastLevenbergMarquardt()
-    scale = column_scale(residuals, free, static, problems[0], None)
+    scale = column_scales(residuals, ys, static, batched, chunk, mesh)
+    scale = spread(jax.tree.map(to_device, scale), mesh)
     inside = bool(np.all(to_host(_batched_inside(ys, static, batched))))
+    each = _each_guarded_scaled_residuals if inside else _each_scaled_residuals
     best_y, outcomes = iterate(
         solver,
         divide(ys, scale),
-        (_fit_residuals(inside)[0], static, batched, scale),
+        (each, static, (batched, scale), None),
         0,
         max_steps,
         patience,
