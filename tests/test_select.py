@@ -542,6 +542,18 @@ def test_cv_folds_hold_out_levels_then_records():
     assert description == levels.description
 
 
+def test_cv_folds_hold_out_different_records():
+    # The third record by input (0.25 A b) is at a level the levels fold holds out:
+    # the next record that fold trains on (0.5 A) takes its place, so that no record
+    # is held out twice (it was: "0.25 A b" in both).
+    experiments = [_fake(c, f"{c} A") for c in (0.0, 0.25, 0.5, 0.75, 1.0)]
+    experiments.append(_fake(0.25, "0.25 A b"))
+    levels, records = cv_folds(experiments)
+    assert levels.test == (1, 3, 5)
+    assert records.test == (2,), records.description
+    assert not set(levels.test) & set(records.test)
+
+
 def test_cv_folds_fill_in_with_time_folds():
     # Three levels, one record each: no records fold is left (the third record is
     # the last), so the last third of every record is the second fold.

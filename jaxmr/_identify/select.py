@@ -748,10 +748,11 @@ def cv_folds(experiments: Sequence) -> list[Fold]:
        0, 0.25, ..., 1 A: the current laws are tested on interpolation, which is
        what they are fitted for.
     2. `"records"`, with 3 or more experiments: every third experiment (ordered by
-       input, then name) held out, from the 3rd on when there is a levels fold (so
-       that it holds out experiments at the levels that fold trains on), else from
-       the 2nd; never the last (no extrapolation past the largest input).
-       Left out when it holds out nothing or the same as the levels fold.
+       input, then name) held out, from the 3rd on when there is a levels fold,
+       else from the 2nd; never the last (no extrapolation past the largest
+       input). Where the levels fold holds one out, the next one it trains on takes
+       its place: the two folds hold out different records (new motions at fitted
+       levels, beside new levels). Left out when it holds out nothing.
     3. `"time"` folds fill in up to `MIN_FOLDS` (2): each experiment split in time,
        the fit sees its start and the score is its last third (then its last half,
        `TIME_FOLD_FRACTIONS`), simulated from the start so that its hysteretic
@@ -784,8 +785,16 @@ def cv_folds(experiments: Sequence) -> list[Fold]:
     if n >= 3:
         order = sorted(range(n), key=lambda k: (levels[k], names[k]))
         first = 2 if folds else 1
-        held = {order[j] for j in range(first, n - 1, 3)}
-        if held and (not folds or tuple(sorted(held)) != folds[0].test):
+        # A record the levels fold holds out gives way to the next one it trains on:
+        # the folds then hold out different records (one in both was counted twice
+        # in the pooled errors, and its motion was never tested at a fitted level).
+        in_levels = set(folds[0].test) if folds else set()
+        held: set[int] = set()
+        for j in range(first, n - 1, 3):
+            k = next((k for k in order[j : n - 1] if k not in in_levels | held), None)
+            if k is not None:
+                held.add(k)
+        if held:
             what = "every third experiment" + (", from the third" if first == 2 else "")
             folds.append(held_out("records", held, what))
     everyone = tuple(range(n))
