@@ -73,6 +73,8 @@ def main():
     table = {}
     with tempfile.TemporaryDirectory() as folder:
         base = Path(folder) / "baseline"
+        # The data are read from ../shared beside the checkout.
+        (Path(folder) / "shared").symlink_to((ROOT.parent / "shared").resolve())
         subprocess.run(
             ["git", "worktree", "add", "--detach", str(base), commit],
             cwd=ROOT, check=True, capture_output=True,
