@@ -166,6 +166,10 @@ def test_experiment_rejects_bad_settings():
             dict(t=_sine(n=10)[0] * 1e4, v=_sine(n=10)[2] * 1e-4),
             r"median time step is 10 s .* milliseconds",
         ),
+        (  # a 1 kHz rig's time in milliseconds: exactly 1 (the bound was > 1 s)
+            dict(t=_sine(n=10)[0] * 1e3, v=_sine(n=10)[2] * 1e-3),
+            r"median time step is 1 s \(sampled at 1 Hz, below 20 Hz\).* milliseconds",
+        ),
         (dict(force=np.full(10, 2e6)), r"largest \|F\| is 2e\+06 N"),
         (dict(current=500.0), r"largest \|current\| is 500 A .* milliamperes"),
         (

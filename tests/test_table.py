@@ -214,18 +214,25 @@ def test_convert_table_names_its_unit_mistakes(tmp_path, capsys):
     text = "\n".join(f"{a} {1e3 * 0.01 * np.sin(6.28 * a)} 5" for a in t)
     path = tmp_path / "mm.txt"
     path.write_text(text + "\n")
+    other = tmp_path / "mm2.txt"
+    other.write_text(text + "\n")
     status, _ = _run(
-        ["convert", "table", path, "--columns", "t,x,F", "--current", "1"]
+        ["convert", "table", path, other, "--columns", "t,x,F", "--current", "1,0"]
         + ["--out", tmp_path / "out"]
     )
     err = capsys.readouterr().err
     assert status == 1 and "[column `x`, which look like mm]" in err
+    # Every table in other units is named, not only the first.
+    assert "mm.txt" in err and "mm2.txt" in err
     assert "declare the unit in --columns" in err and not (tmp_path / "out").exists()
-    status, _ = _run(
-        ["convert", "table", path, "--columns", "t,x:mm,F", "--current", "1"]
+    status, stdout = _run(
+        ["convert", "table", path, other, "--columns", "t,x:mm,F", "--current", "1,0"]
         + ["--out", tmp_path / "out"]
     )
     assert status == 0
+    # The input each table was given, in the order given.
+    assert "mm.txt -> " in stdout and "(current 1 A)" in stdout
+    assert stdout.index("(current 1 A)") < stdout.index("(current 0 A)")
     e = jaxmr.data.read_csv(tmp_path / "out" / "mm.csv")
     np.testing.assert_allclose(e.x, 0.01 * np.sin(6.28 * t), rtol=1e-12, atol=1e-15)
     assert e.velocity_source != "measured"  # computed from x

@@ -6,6 +6,8 @@ import argparse
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+import numpy as np
+
 import jaxmr
 
 from .errors import CLIError
@@ -146,29 +148,30 @@ def run_table(args: argparse.Namespace) -> int:
     n = len(sources)
     currents = _levels(args.current, "--current", n) if args.current else [None] * n
     voltages = _levels(args.voltage, "--voltage", n) if args.voltage else [None] * n
-    experiments = []
-    for source, current, voltage in zip(sources, currents, voltages):
+
+    def read(source, current, voltage):
         try:
-            experiments.append(
-                checking_units(
-                    lambda s=source, i=current, u=voltage: jaxmr.data.read_table(
-                        s,
-                        args.columns,
-                        current=i,
-                        voltage=u,
-                        smoothing=args.smoothing,
-                        discard=args.discard,
-                    ),
-                    accept=args.accept_units,
-                    fix="declare the unit in --columns (e.g. x:mm, t:ms, i:mA)",
-                    sign_fix="negate the column named above in --columns: a minus "
-                    "sign before its unit (e.g. F:-kN, v:-mm/s, or F:- in SI)",
-                )
+            return jaxmr.data.read_table(
+                source,
+                args.columns,
+                current=current,
+                voltage=voltage,
+                smoothing=args.smoothing,
+                discard=args.discard,
             )
         except ValueError as e:
             raise CLIError(str(e)) from e
         except OSError as e:
             raise CLIError(f"cannot read {source}: {e.strerror or e}") from e
+
+    # Every table read before a refusal, which then names each one in other units.
+    experiments = checking_units(
+        lambda: [read(*a) for a in zip(sources, currents, voltages)],
+        accept=args.accept_units,
+        fix="declare the unit in --columns (e.g. x:mm, t:ms, i:mA)",
+        sign_fix="negate the column named above in --columns: a minus "
+        "sign before its unit (e.g. F:-kN, v:-mm/s, or F:- in SI)",
+    )
     prepare_directory(out)
     for source, experiment, target in zip(sources, experiments, targets):
         comment = (
@@ -180,8 +183,21 @@ def run_table(args: argparse.Namespace) -> int:
             lambda p, e=experiment, c=comment: jaxmr.data.write_csv(e, p, comment=c),
             replacing=target in replacing,
         )
+        # The input each table was given, so that a list of levels paired with files
+        # in another order than meant (a shell glob sorts 0.5A before 0A) shows.
+        print(f"{source} -> {target} ({_input_words(experiment)})")
     print(f"{len(targets)} file(s) in {out}")
     return 0
+
+
+def _input_words(experiment) -> str:
+    """The experiment's input in words: its constant level, or its range."""
+    unit = "V" if experiment.drive == "voltage" else "A"
+    values = np.asarray(experiment.current, float)
+    low, high = float(np.min(values)), float(np.max(values))
+    if low == high:
+        return f"{experiment.drive} {low:g} {unit}"
+    return f"{experiment.drive} {low:g} to {high:g} {unit}"
 
 
 def run(args: argparse.Namespace) -> int:

@@ -96,30 +96,15 @@ def read_experiments(
     """Read canonical CSV files; every problem becomes a `CLIError` with the data
     layer's message (which names the file, the line and the fix). With `accept_units`
     False an implausible unit is an error (`checking_units`); None or True: a
-    warning."""
-    experiments = []
-    for path in paths:
+    warning. Every file is read before a refusal, which names each one in other
+    units (not only the first)."""
+
+    def read(path):
         if not Path(path).is_file():
             what = "is a directory" if Path(path).is_dir() else "no such file"
             raise CLIError(f"{path}: {what}")
         try:
-            if accept_units is None:
-                experiment = jaxmr.data.read_csv(path)
-            else:
-                experiment = checking_units(
-                    lambda path=path: jaxmr.data.read_csv(path),
-                    accept=accept_units,
-                    fix=(
-                        "write the file in SI units, e.g. with the column's unit "
-                        "declared: `jaxmr convert table RAW --columns t,x:mm,... --out "
-                        "DIR`"
-                    ),
-                    sign_fix=(
-                        "write the file with the column named above negated, e.g. "
-                        "with a minus sign before its unit: `jaxmr convert table RAW "
-                        "--columns t,x:mm,F:-kN ... --out DIR` (or v:-mm/s)"
-                    ),
-                )
+            experiment = jaxmr.data.read_csv(path)
         except ValueError as e:
             raise CLIError(str(e)) from e
         except (OSError, UnicodeDecodeError) as e:
@@ -130,7 +115,25 @@ def read_experiments(
             raise CLIError(
                 f"{path}: no measured force (column `{load}`); {why} needs it"
             )
-        experiments.append(experiment)
+        return experiment
+
+    if accept_units is None:
+        experiments = [read(path) for path in paths]
+    else:
+        experiments = checking_units(
+            lambda: [read(path) for path in paths],
+            accept=accept_units,
+            fix=(
+                "write the file in SI units, e.g. with the column's unit "
+                "declared: `jaxmr convert table RAW --columns t,x:mm,... --out "
+                "DIR`"
+            ),
+            sign_fix=(
+                "write the file with the column named above negated, e.g. "
+                "with a minus sign before its unit: `jaxmr convert table RAW "
+                "--columns t,x:mm,F:-kN ... --out DIR` (or v:-mm/s)"
+            ),
+        )
     kinds = {(e.rotary, e.drive) for e in experiments}
     if len(kinds) > 1:
         listed = ", ".join(

@@ -30,12 +30,13 @@ VELOCITY_CENTRAL = (
 # Thresholds of the unit-plausibility warnings (SI units expected). Each is far outside
 # what a laboratory MR damper or brake produces in SI, and close to what the common unit
 # mistake gives: a stroke of 0.5 m is beyond any MR damper test rig (±25 mm is typical;
-# millimetres in a metre column give hundreds), a 1 s sample step is beyond any
-# dynamic test (milliseconds in a seconds column give 1 or more), 1 MN is beyond the
+# millimetres in a metre column give hundreds), a 0.05 s sample step (20 Hz) is beyond
+# any dynamic test (milliseconds in a seconds column give 0.05 or more at up to 20 kHz:
+# a 1 kHz rig's exactly 1, which a bound of 1 s had let through), 1 MN is beyond the
 # largest (200 kN seismic) MR dampers, and 50 A is ten times the largest coil currents
 # (milliamperes in an ampere column give hundreds).
 MAX_DISPLACEMENT_AMPLITUDE = 0.5  # m, half the peak-to-peak displacement
-MAX_TIME_STEP = 1.0  # s, median sample step
+MAX_TIME_STEP = 0.05  # s, median sample step
 MAX_FORCE = 1e6  # N (N·m for a brake), largest magnitude
 MAX_CURRENT = 50.0  # A, largest magnitude (not checked for a voltage drive)
 # A measured velocity whose RMS differs from that of the derivative of the displacement
@@ -295,10 +296,11 @@ def warn_implausible_units(
         )
 
     dt = float(np.median(np.diff(t)))
-    if dt > MAX_TIME_STEP:
+    if dt >= MAX_TIME_STEP:
         warn(
-            f"the median time step is {dt:g} s (> {MAX_TIME_STEP:g} s): is `t` in "
-            "milliseconds? jaxmr expects seconds.",
+            f"the median time step is {dt:g} s (sampled at {1 / dt:g} Hz, below "
+            f"{1 / MAX_TIME_STEP:g} Hz): is `t` in milliseconds? jaxmr expects "
+            "seconds.",
             "t",
             "ms",
         )
