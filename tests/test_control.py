@@ -107,6 +107,21 @@ def test_riccati_matches_python_control():
         assert np.all(np.linalg.eigvals(closed).real < 0)
 
 
+@pytest.mark.parametrize(
+    "Q, R, match",
+    [
+        (Q_DIAG, -R_DIAG, "`R` must be positive definite"),
+        (Q_DIAG, 0.0 * R_DIAG, "`R` must be positive definite"),
+        (-Q_DIAG, R_DIAG, "must be positive semidefinite"),
+    ],
+)
+def test_lqr_refuses_weights_with_no_minimum(Q, R, match):
+    # Indefinite weights have no optimum; the solve had returned a gain anyway (with
+    # R = -1 one of 1e7 whose closed loop was unstable, at +2e5 1/s).
+    with pytest.raises(eqx.EquinoxRuntimeError, match=match):
+        lqr(A, B, Q, R)
+
+
 def test_lyapunov_residual_and_scipy():
     P = solve_lyapunov(A_DAMPED, Q_LYAP)
     residual = A_DAMPED.T @ P + P @ A_DAMPED + Q_LYAP

@@ -157,7 +157,31 @@ def _riccati_inputs(A, B, Q, R, N):
     return A, B, Q, R, N
 
 
+def _checked_weights(Q, R, N):
+    """`Q`, `R` with runtime checks: R positive definite and the cost's whole weight
+    [[Q, N], [Nᵀ, R]] positive semidefinite (to rounding). An indefinite weight
+    has no minimum: the sign-function solve still returned a P, and with R = −1 a
+    gain of 1e7 whose closed loop had an eigenvalue at +2e5."""
+    whole = jnp.linalg.eigvalsh(jnp.block([[Q, N], [N.T, R]]))
+    rounding = 1e-10 * jnp.max(jnp.abs(whole))
+    R = eqx.error_if(
+        R,
+        jnp.min(jnp.linalg.eigvalsh(R)) <= 0,
+        "lqr/solve_riccati: `R` must be positive definite (every eigenvalue > 0): "
+        "the input's weight.",
+    )
+    Q = eqx.error_if(
+        Q,
+        jnp.min(whole) < -rounding,
+        "lqr/solve_riccati: the state weight `Q` (with the cross weight `N`) must be "
+        "positive semidefinite (every eigenvalue of [[Q, N], [Nᵀ, R]] >= 0): an "
+        "indefinite weight rewards the states it should penalise.",
+    )
+    return Q, R
+
+
 def _solve(A, B, Q, R, N):
+    Q, R = _checked_weights(Q, R, N)
     # The cross term folds into A and Q: with u = v − R⁻¹Nᵀx the cost has no cross term.
     R_inv_BT = jnp.linalg.solve(R, B.T)
     R_inv_NT = jnp.linalg.solve(R, N.T)
