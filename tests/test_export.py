@@ -327,9 +327,10 @@ def test_the_c_controller_gives_the_jax_commands(tmp_path, case):
             ),
             jaxmr.FirstOrderLag(60.0),
         )
+        # Its estimator starts from calibrated biases [m/s²], not the first readings.
         controller = jaxmr.ObserverBasedController(
             jaxmr.Groundhook(1500.0, 1.0, temperature=0.1),
-            estimator=jaxmr.VelocityEstimator(),
+            estimator=jaxmr.VelocityEstimator(body_bias=0.05, wheel_bias=-0.02),
             observer=jaxmr.DamperObserver(dahl, gain=0.3),
         )
         names = car_sensors + ("damper_force",)

@@ -46,6 +46,10 @@ def _cos_of_root_minus_one(u: Scalar) -> Scalar:
     return jnp.where(small, -u / 2 + u**2 / 24, big)
 
 
+def _optional_array(value):
+    return None if value is None else as_float_array(value)
+
+
 class VelocityEstimator(eqx.Module):
     r"""The body velocity, the wheel velocity and the suspension's deflection rate,
     estimated from a body accelerometer, a wheel accelerometer and a deflection sensor.
@@ -91,8 +95,15 @@ class VelocityEstimator(eqx.Module):
       is $z_s - z_u$): the suspension's relative position is measured, only the
       common absolute part is estimated.
 
-    The estimates start at rest, the first readings taken as the biases (the machine
-    at rest when the controller starts). A missing wheel accelerometer counts as
+    The estimates start at rest. The biases start from the accelerometers' readings
+    at rest where they are given (`body_bias`, `wheel_bias`: calibrated at
+    standstill), else from the first readings, which holds only for a machine at
+    rest when the controller starts: a first reading taken in motion (a free decay
+    from a deflected state, a controller restarted while the car drives) is a
+    false bias, which the estimates carry for about $1/(2\pi f_h)$ (1.6 s at the
+    default corner; the SAS rig's free decay from rest at 0.28 rad read
+    −19.7 rad/s² and its body velocity came out at up to 12 rad/s against a true
+    2.4). A missing wheel accelerometer counts as
     zero acceleration: the fixed ground of a `SingleDegreeOfFreedom`, or, on a car,
     a deflection rate from the deflection sensor alone (a tracking differentiator).
     `ObserverBasedController` steps it at its sample time; every parameter is an
@@ -105,6 +116,9 @@ class VelocityEstimator(eqx.Module):
     - `damping`: $\zeta > 0$ [1], default 0.7.
     - `high_pass`: $f_h > 0$ [Hz], default 0.1.
     - `position_high_pass`: $f_p > 0$ [Hz], default 0.1.
+    - `body_bias`, `wheel_bias`: the body and wheel accelerometers' readings at rest
+      [m/s² or rad/s²] (their offset, gravity included where they read it), the
+      start of the biases' estimates; default None: the first readings.
     """
 
     crossover: Float[Array, ""] = eqx.field(converter=as_float_array, default=5.0)
@@ -112,6 +126,12 @@ class VelocityEstimator(eqx.Module):
     high_pass: Float[Array, ""] = eqx.field(converter=as_float_array, default=0.1)
     position_high_pass: Float[Array, ""] = eqx.field(
         converter=as_float_array, default=0.1
+    )
+    body_bias: Float[Array, ""] | None = eqx.field(
+        converter=_optional_array, default=None
+    )
+    wheel_bias: Float[Array, ""] | None = eqx.field(
+        converter=_optional_array, default=None
     )
 
     def __check_init__(self):
@@ -128,6 +148,29 @@ class VelocityEstimator(eqx.Module):
                 f"{' ' + unit if unit else ''}, got {value}.",
                 value,
             )
+        for name in ("body_bias", "wheel_bias"):
+            value = getattr(self, name)
+            if value is not None:
+                check_concrete(
+                    jnp.isfinite(value),
+                    f"VelocityEstimator: `{name}` must be a finite number [m/s² or "
+                    f"rad/s²] or None, got {value}.",
+                    value,
+                )
+
+    def start_biases(self, a_s, a_u, wheel: bool):
+        """The biases' estimates at the first sample: the readings at rest where
+        given, else the first readings `a_s`, `a_u` (a missing wheel accelerometer
+        reads 0, `wheel` False); and the relative acceleration's bias, their
+        difference."""
+        body = a_s if self.body_bias is None else self.body_bias + 0.0 * a_s
+        if not wheel:
+            wheel_start = a_u
+        elif self.wheel_bias is None:
+            wheel_start = a_u
+        else:
+            wheel_start = self.wheel_bias + 0.0 * a_u
+        return body, wheel_start, body - wheel_start
 
     def init(self, measurement, positions: bool = False) -> EstimatorState:
         """The state before the first sample (reset from the first readings there).
@@ -186,8 +229,13 @@ class VelocityEstimator(eqx.Module):
         started = state.started
 
         leak = jnp.exp(-2 * jnp.pi * self.high_pass * dt)
-        body_bias = jnp.where(started, leak * state.body_bias + (1 - leak) * a_s, a_s)
-        wheel_bias = jnp.where(started, leak * state.wheel_bias + (1 - leak) * a_u, a_u)
+        body_start, wheel_start, relative_start = self.start_biases(a_s, a_u, wheel)
+        body_bias = jnp.where(
+            started, leak * state.body_bias + (1 - leak) * a_s, body_start
+        )
+        wheel_bias = jnp.where(
+            started, leak * state.wheel_bias + (1 - leak) * a_u, wheel_start
+        )
         body = a_s - body_bias
         # Trapezoidal integration, the older term leaked over the sample.
         body_velocity = leak * state.body_velocity + 0.5 * dt * (
@@ -213,7 +261,9 @@ class VelocityEstimator(eqx.Module):
             body,
             relative,
             jnp.where(
-                started, state.relative_bias + (gamma / dt**2) * innovation, relative
+                started,
+                state.relative_bias + (gamma / dt**2) * innovation,
+                relative_start,
             ),
             jnp.where(started, body_velocity, zero),
             jnp.where(started, predicted_x + alpha * innovation, x),

@@ -149,6 +149,14 @@ def _estimator(
     )
     wheel = "wheel_acceleration" in inputs
     a_u = f"in[{macro}_IN_WHEEL_ACCELERATION]" if wheel else "0.0 * a_s"
+    # The biases' start (`VelocityEstimator.start_biases`): the readings at rest
+    # where given, else the first readings.
+    body_start = "a_s" if estimator.body_bias is None else literal(estimator.body_bias)
+    wheel_start = (
+        literal(estimator.wheel_bias)
+        if wheel and estimator.wheel_bias is not None
+        else "a_u"
+    )
     wheel_estimate = "\n    r->wheel_acceleration = a_u - wheel_bias;" if wheel else ""
     position = position_state = position_estimate = ""
     what = ""
@@ -178,8 +186,10 @@ static void estimator_step(estimator *e, const double *in, readings *r)
     double x = in[{macro}_IN_DAMPER_DISPLACEMENT];
     double a_u = {a_u};
     int started = e->started;
-    double body_bias = started ? leak * e->body_bias + one_minus_leak * a_s : a_s;
-    double wheel_bias = started ? leak * e->wheel_bias + one_minus_leak * a_u : a_u;
+    double body_bias = started ? leak * e->body_bias + one_minus_leak * a_s
+                               : {body_start};
+    double wheel_bias = started ? leak * e->wheel_bias + one_minus_leak * a_u
+                                : {wheel_start};
     double body = a_s - body_bias;
     double body_velocity = leak * e->body_velocity
                            + {literal(0.5 * dt)} * (leak * e->body_previous + body);\
@@ -192,7 +202,8 @@ static void estimator_step(estimator *e, const double *in, readings *r)
     double predicted_v = e->damper_velocity + {literal(0.5 * dt)} * (before + now);
     double innovation = x - predicted_x;
     e->relative_bias = started
-        ? e->relative_bias + {literal(gamma_dt2)} * innovation : relative;
+        ? e->relative_bias + {literal(gamma_dt2)} * innovation
+        : body_bias - wheel_bias;
     e->started = 1;
     e->body_bias = body_bias;
     e->wheel_bias = wheel_bias;
@@ -409,6 +420,16 @@ typedef struct {{
     if not members:
         members.append("    int unused; /* the law keeps no state */")
     law_name = type(controller.law).__name__
+    biases = ""
+    if estimator is not None:
+        biases = (
+            "\n   The accelerometers' biases start from the first sample's readings:"
+            "\n   start it with the machine at rest (or export an estimator given"
+            "\n   its readings at rest, VelocityEstimator(body_bias=, wheel_bias=))."
+            if estimator.body_bias is None
+            else "\n   The accelerometers' biases start from their readings at rest,"
+            "\n   as the estimator was given them."
+        )
     header = f"""\
 /* {name}.h: a semi-active controller exported by jaxmr {__version__}
    (jaxmr.export_c): {law_name}{" with a velocity estimator" if estimator else ""}\
@@ -418,7 +439,7 @@ typedef struct {{
    sample's measurements, then {name}_step at every sample (the first included),
    every {dt!r} s; its command [A] is meant to act {delay} sample(s) later, as the
    controller was tuned. Dependency-free C99 (math.h), no allocation, double
-   precision; the whole state is {name}_state. */
+   precision; the whole state is {name}_state.{biases} */
 #ifndef {macro}_H
 #define {macro}_H
 
