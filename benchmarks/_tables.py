@@ -709,6 +709,21 @@ TABLES = (
         ),
     ),
     Table(
+        "fold_choice",
+        "fold_choice.py",
+        (
+            Row(
+                "geomean_ratio",
+                "folds holding out different records: auto's held-out median "
+                "NRMSE over the baseline folds', geometric mean over the datasets "
+                "whose folds change (rule: ≤ 1.00)",
+            ),
+            Row("max_ratio", "the same, worst dataset (rule: ≤ 1.10)"),
+            Row("time_factor", "auto's wall time, new folds over the baseline's"),
+            Row("keep_new_folds", "whether the rule keeps the new folds"),
+        ),
+    ),
+    Table(
         "held_out_currents",
         "held_out_currents.py",
         (

@@ -125,6 +125,12 @@ BENCHMARKS = (
     ),
     Benchmark("trust_region_choice", "trust_region_choice.py"),
     Benchmark(
+        "fold_choice",
+        "fold_choice.py",
+        ("--baseline", "b2c039a"),
+        quick=("--datasets", "sim_spencer_1997"),
+    ),
+    Benchmark(
         "fit_each_scaling",
         "fit_each_scaling.py",
         ("--processes", "2"),
