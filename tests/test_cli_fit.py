@@ -243,6 +243,17 @@ def test_predict(fitted, files, tmp_path):
     assert np.all((band["F_lower"] < band["F"]) & (band["F"] < band["F_upper"]))
     # A well-determined fit: the band is far narrower than the noise (0.5 % of std F).
     assert np.max(band["F_upper"] - band["F_lower"]) < NOISE * np.std(band["F"])
+    assert predicted.smoothing == 0.0 and "moving average" not in stdout
+    # A prediction through a moving average says so: on the terminal, in its '# F:'
+    # line and in its own '# smoothing:' line (it had read 0).
+    smoothed = tmp_path / "smoothed.csv"
+    status, stdout = _run(
+        ["predict", params, files[1], "--out", smoothed, "--smoothing", "0.01"]
+    )
+    assert status == 0 and "0.01 s moving average" in stdout
+    assert jaxmr.data.read_csv(smoothed).smoothing == 0.01
+    (line,) = [x for x in smoothed.read_text().splitlines() if x.startswith("# F:")]
+    assert "0.01 s moving average" in line
 
 
 def _columns(path) -> dict[str, np.ndarray]:

@@ -113,6 +113,9 @@ def run(args: argparse.Namespace) -> int:
             rotary=experiment.rotary,
             drive=experiment.drive,
             velocity_source=experiment.velocity_source,
+            # The prediction went through the measured force's moving average: the
+            # file says so (its '# smoothing:' line), as a measured file would.
+            smoothing=experiment.smoothing,
         )
     load = "T" if experiment.rotary else "F"
     comment = (
@@ -120,6 +123,14 @@ def run(args: argparse.Namespace) -> int:
         f"{type(model).__name__} model of {args.params}, from the motion and input of "
         f"{args.file}"
     )
+    if experiment.smoothing > 0:
+        smoothed = (
+            f"through the {experiment.smoothing:g} s moving average the measured "
+            f"{'torque' if experiment.rotary else 'force'} went through (--smoothing 0 "
+            "for the model's own)"
+        )
+        comment += f", {smoothed}"
+        print(f"{args.file}: the prediction is {smoothed}", flush=True)
     # The band's centre is the same simulation as `predicted` (`predict_all`'s).
     bands, _ = prediction_bands(model, data, [experiment], args.params, args.band_level)
     band = None if bands is None else bands[0]
