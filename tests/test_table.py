@@ -245,6 +245,13 @@ LAYOUTS = {
     "commas, header": "t,x,F\n0.0,1.0,2\n0.1,1.25,3\n0.2,1.5,4\n",
     "whitespace, decimal comma": "0,0  1,0 2\n 0,1 1,25   3\n0,2 1,5 4\n",
     "whitespace, comment and blank lines": "# rig 3\n\n0 1 2\n0.1 1.25 3\n\n0.2 1.5 4\n",
+    # A spreadsheet's export: quoted cells (a quoted decimal comma may sit between
+    # commas), a delimiter closing every row.
+    "quoted, semicolons, decimal comma": (
+        '"t";"x";"F"\n"0,0";"1,0";"2"\n"0,1";"1,25";"3"\n"0,2";"1,5";"4"\n'
+    ),
+    "quoted, commas, decimal comma": '"0,0","1,0",2\n"0,1","1,25",3\n"0,2","1,5",4\n',
+    "semicolons, one closing every row": "0,0;1,0;2;\n0,1;1,25;3;\n0,2;1,5;4;\n",
 }
 
 
@@ -297,6 +304,13 @@ def test_read_table_rotary_with_skipped_column(tmp_path):
         ("0 1\n", "t,F", {"current": 1}, r"lack \['x'\]"),
         ("0 1 2\n", "t,x,T", {"current": 1}, r"mixed"),
         ("0 1\n0 2\n0.1 3\n", "t,x", {"current": 1}, r"strictly increasing.*line 2"),
+        # an empty cell is a missing value, named by its column and line
+        (
+            "0;1;2\n0,1;;3\n0,2;1;4\n",
+            "t,x,F",
+            {"current": 1},
+            r"column `x` has a non-finite value \(nan\) at line 2",
+        ),
     ],
 )
 def test_read_table_refusals(text, columns, options, match, tmp_path):

@@ -1,6 +1,7 @@
 """A user's own measurement table (any delimiter, decimal point or comma, any units)
 read into an `Experiment` in SI units: `read_table`."""
 
+import csv
 import math
 import os
 import re
@@ -48,9 +49,10 @@ _DELIMITERS = {
     "commas": lambda s: s.split(","),
     "whitespace": str.split,
 }
-# A row of numbers holds digits, signs, exponents, decimal marks and delimiters only;
+# A row of numbers holds digits, signs, exponents, decimal marks, delimiters and quotes
+# only;
 # the lines before the first such row are a header and skipped.
-_NUMERIC_ROW = re.compile(r"^[\d\s.,;+\-eE]+$")
+_NUMERIC_ROW = re.compile(r'^[\d\s.,;+\-eE"]+$')
 
 
 def _parse_columns(columns: str | Sequence[str], where: str) -> list[tuple[str, float]]:
@@ -117,15 +119,33 @@ def _to_si(values: np.ndarray, factor: float) -> np.ndarray:
     return values * factor
 
 
-def _cells(text: str, delimiter: str, decimal: str) -> list[float] | None:
-    """The numbers of one line in one layout, or None if it is not that layout."""
-    parts = [p.strip() for p in _DELIMITERS[delimiter](text)]
+def _split(text: str, delimiter: str) -> list[str]:
+    """The cells of one line at `delimiter`, each without the quotes a spreadsheet
+    puts around it (`"1,5";"2"`; a quoted cell may hold the delimiter)."""
+    if '"' in text and delimiter != "whitespace":
+        char = {"tabs": "\t", "semicolons": ";", "commas": ","}[delimiter]
+        parts = next(csv.reader([text], delimiter=char))
+    else:
+        parts = _DELIMITERS[delimiter](text)
+    return [p.strip().strip('"').strip() for p in parts]
+
+
+def _cells(text: str, delimiter: str, decimal: str, count: int) -> list[float] | None:
+    """The `count` numbers of one line in one layout, or None if it is not that
+    layout. An empty cell is a missing value (NaN, which the column checks then name
+    with its line); one empty cell past `count` is the delimiter a spreadsheet
+    leaves at the end of each row."""
+    parts = _split(text, delimiter)
+    if len(parts) == count + 1 and parts[-1] == "":
+        parts = parts[:-1]
+    if len(parts) != count or all(p == "" for p in parts):
+        return None
     try:
         if decimal == ",":
             if any("." in p for p in parts):
                 return None  # a decimal comma beside a point: not this layout
             parts = [p.replace(",", ".") for p in parts]
-        return [float(p) for p in parts]
+        return [float(p) if p else math.nan for p in parts]
     except ValueError:
         return None
 
@@ -135,17 +155,16 @@ def _layouts(first: str, count: int) -> list[tuple[str, str]]:
     found = []
     for delimiter in _DELIMITERS:
         for decimal in (".", ","):
-            if decimal == "," and delimiter == "commas":
-                continue
-            cells = _cells(first, delimiter, decimal)
-            if cells is not None and len(cells) == count:
+            if decimal == "," and delimiter == "commas" and '"' not in first:
+                continue  # a decimal comma between commas only in quoted cells
+            if _cells(first, delimiter, decimal, count) is not None:
                 found.append((delimiter, decimal))
     return found
 
 
 def _describe(text: str) -> str:
     """What a line looks like, for the messages: its cells under each delimiter."""
-    counts = [f"{len(_DELIMITERS[d](text.strip()))} at {d}" for d in _DELIMITERS]
+    counts = [f"{len(_split(text.strip(), d))} at {d}" for d in _DELIMITERS]
     return "cells when split " + ", ".join(counts)
 
 
@@ -167,6 +186,9 @@ def read_table(
     decimal comma needs another delimiter than the comma) that read each row as one
     number per named column (where several do, as `0;1` for both marks, they read it
     alike; a row that none of the layouts of the rows before it reads is an error).
+    A spreadsheet's export reads too: cells in double quotes (a quoted cell may hold
+    the delimiter, as a decimal comma between commas) and a delimiter closing every
+    row. An empty cell is a missing value, refused with its column and line.
     Lines starting with `#` and blank lines are skipped, and so are the lines before
     the first row of numbers (a header: a line with a letter other than an
     exponent's `e`). The file may be gzip-compressed.
@@ -244,8 +266,8 @@ def read_table(
                 )
         read = {}
         for layout in layouts:
-            cells = _cells(text, *layout)
-            if cells is not None and len(cells) == len(spec):
+            cells = _cells(text, *layout, len(spec))
+            if cells is not None:
                 read[layout] = cells
         if not read:
             described = " or ".join(
