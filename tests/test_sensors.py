@@ -158,6 +158,16 @@ def test_a_controller_reading_what_no_sensor_gives_is_told_what_to_do(car_and_ro
     )
     with pytest.raises(TypeError, match="observer=jaxmr.DamperObserver"):
         jaxmr.simulate_system(car, road, estimated, T, sensors=sensors, key=key)
+    # The estimator without its deflection sensor: told to add that sensor (it was
+    # told to add the estimator it has).
+    no_deflection = jaxmr.Sensors(
+        {k: v for k, v in sensors.sensors.items() if k != "damper_displacement"}
+    )
+    on_off = jaxmr.ObserverBasedController(
+        jaxmr.OnOffSkyhook(1.0), estimator=jaxmr.VelocityEstimator()
+    )
+    with pytest.raises(KeyError, match="Nothing in a controller estimates it"):
+        jaxmr.simulate_system(car, road, on_off, T, sensors=no_deflection, key=key)
     # A bare law never reads the device's state through sensors.
     velocity = jaxmr.Sensors({"body_velocity": jaxmr.Sensor()})
     with pytest.raises(TypeError, match="whose state no sensor gives"):

@@ -207,6 +207,17 @@ def test_fit_refuses_an_implausible_unit(files, tmp_path, capsys):
     assert again.smoothing == 0.1
 
 
+def test_convert_table_without_an_input_names_its_options(tmp_path, capsys):
+    path = tmp_path / "run.txt"
+    path.write_text("0 1\n0.01 2\n0.02 3\n")
+    status, _ = _run(
+        ["convert", "table", path, "--columns", "t,x", "--out", tmp_path / "out"]
+    )
+    err = capsys.readouterr().err
+    assert status == 1 and "--current LEVELS [A] or --voltage LEVELS [V]" in err
+    assert not (tmp_path / "out").exists()
+
+
 def test_convert_table_names_its_unit_mistakes(tmp_path, capsys):
     """`jaxmr convert table` refuses a declared unit that gives implausible values,
     naming the column and the unit to declare."""

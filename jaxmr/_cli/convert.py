@@ -146,6 +146,13 @@ def run_table(args: argparse.Namespace) -> int:
         )
     replacing = plan_outputs(targets, sources, force=args.force)
     n = len(sources)
+    named = {c.split(":")[0].strip() for c in args.columns.split(",")}
+    if not ({"i", "u"} & named or args.current or args.voltage):
+        # Said here in the command line's words (the library names its arguments).
+        raise CLIError(
+            "no input: give --current LEVELS [A] or --voltage LEVELS [V] (one per "
+            "table), or an `i` [A] or `u` [V] column in --columns"
+        )
     currents = _levels(args.current, "--current", n) if args.current else [None] * n
     voltages = _levels(args.voltage, "--voltage", n) if args.voltage else [None] * n
 

@@ -155,12 +155,25 @@ class SensorState(eqx.Module):
     reading: Scalar
 
 
+# What a `VelocityEstimator` must read (the wheel accelerometer is optional).
+ESTIMATOR_READS = ("body_acceleration", "damper_displacement")
+
+
 class _Readings(dict):
     """The readings a controller gets: a dict whose missing names say what is measured
     and what to do instead of a bare KeyError."""
 
     def __missing__(self, name):
         measured = sorted(k for k in self if k != "time")
+        if name in ESTIMATOR_READS:
+            # Asked for by an estimator, whose own inputs no estimate replaces.
+            raise KeyError(
+                f"{name!r} is not measured: the sensors read {measured}. Nothing in "
+                "a controller estimates it: a jaxmr.VelocityEstimator reads a body "
+                "accelerometer (`body_acceleration`) and a deflection sensor "
+                "(`damper_displacement`), a jaxmr.DamperObserver the deflection. Add "
+                "the missing sensor to the `Sensors`."
+            )
         raise KeyError(
             f"{name!r} is not measured: the sensors read {measured}. A quantity no "
             "sensor gives is estimated inside the controller: wrap the law in "

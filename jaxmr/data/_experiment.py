@@ -238,8 +238,9 @@ def check_columns(
             f"{where}: time `{time_name}` must be strictly increasing, but "
             f"{time_name}={float(t[k])!r} at {row(k)} does not exceed "
             f"{float(t[k - 1])!r} at "
-            f"{row(k - 1)} ({bad.size} such steps); sort the samples and remove repeated "
-            "time stamps."
+            f"{row(k - 1)} ({bad.size} such steps). Where the time starts again (a "
+            "file that joins several runs), split it into one file per run; else "
+            "sort the samples and remove repeated time stamps."
         )
 
 
