@@ -102,6 +102,7 @@ if TYPE_CHECKING:
         design_experiments as design_experiments,
         fit as fit,
         fit_each as fit_each,
+        fit_report as fit_report,
         fit_system as fit_system,
         planned_test as planned_test,
         predict as predict,
@@ -109,6 +110,7 @@ if TYPE_CHECKING:
         prediction_band as prediction_band,
         prediction_band_from_covariance as prediction_band_from_covariance,
         record_nrmse as record_nrmse,
+        save_fit as save_fit,
         select_model as select_model,
         sine_grid as sine_grid,
     )

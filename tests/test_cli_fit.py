@@ -256,6 +256,40 @@ def test_predict(fitted, files, tmp_path):
     assert "0.01 s moving average" in line
 
 
+def test_a_fit_saved_from_python_reads_as_the_command_lines(
+    dahl_fit, files, fitted, tmp_path, capsys
+):
+    """`jaxmr.save_fit` writes what `jaxmr fit` writes: the same report entries,
+    a fitted range, and a `jaxmr report` that knows the fitted experiments by their
+    numbers (here written to new files under other names) and draws their band;
+    it never writes over a file unless told."""
+    experiments = [jaxmr.data.read_csv(f) for f in files]
+    params = tmp_path / "api.json"
+    jaxmr.save_fit(dahl_fit, experiments, params)
+    saved = json.loads(params.read_text())
+    from_cli = json.loads(fitted[1].read_text())
+    cli_only = {"fit_time_s", "warnings", "settings"}
+    assert set(saved["report"]) == set(from_cli["report"]) - cli_only
+    assert saved["report"]["files"] == [None] * len(files)
+    assert jaxmr.load_model(params).fitted_range is not None
+    copies = []
+    for k, e in enumerate(experiments):
+        copies.append(tmp_path / f"copy_{k}.csv")
+        jaxmr.data.write_csv(e, copies[-1])
+    status, _ = _run(["report", params, *copies, "--out", tmp_path / "rep"])
+    assert status == 0
+    with open(tmp_path / "rep" / "report.csv", newline="") as f:
+        rows = list(csv.DictReader(f))
+    assert [r["data"] for r in rows] == ["fitted"] * len(files)
+    assert all(float(r["band_halfwidth_N"]) > 0 for r in rows)
+    with pytest.raises(FileExistsError, match="overwrite=True"):
+        jaxmr.save_fit(dahl_fit, experiments, params)
+    jaxmr.save_fit(dahl_fit, experiments, params, overwrite=True, note="again")
+    assert json.loads(params.read_text())["report"]["note"] == "again"
+    with pytest.raises(ValueError, match="give the experiments it was fitted on"):
+        jaxmr.save_fit(dahl_fit, experiments[:1], tmp_path / "x.json")
+
+
 def _columns(path) -> dict[str, np.ndarray]:
     """A CSV's columns by name (the band's too)."""
     with open(path, newline="") as f:

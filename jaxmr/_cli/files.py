@@ -10,7 +10,6 @@ becomes a `CLIError` whose message names the file.
 
 import argparse
 import dataclasses
-import hashlib
 import json
 import math
 import os
@@ -324,15 +323,6 @@ def units(experiment) -> tuple[str, str]:
     """(force unit, input unit) of an experiment's device."""
     force = "N·m" if experiment.rotary else "N"
     return force, "V" if experiment.drive == "voltage" else "A"
-
-
-def file_digest(path) -> str | None:
-    """The SHA-256 of a file's bytes: `jaxmr report` knows a fitted file by it, under
-    any name or directory (None when it cannot be read)."""
-    try:
-        return hashlib.sha256(Path(path).read_bytes()).hexdigest()
-    except OSError:
-        return None
 
 
 # ---------------------------------------------------------------------------------------

@@ -29,7 +29,6 @@ from .files import (
     ACCEPT_UNITS_HELP,
     FORCE_HELP,
     check_writable_file,
-    file_digest,
     plan_outputs,
     read_experiments,
     same_file,
@@ -635,102 +634,17 @@ def _rescue(write) -> str:
 
 
 def _fit_report(name, files, experiments, result, elapsed, selection, warnings) -> dict:
-    """The report saved with the model (`jaxmr report` reads it)."""
-    force_unit, input_unit = units(experiments[0])
-    report = {
-        "template": name,
-        "device": "rotary" if experiments[0].rotary else "linear",
-        "force_unit": force_unit,
-        "input": f"{experiments[0].drive} [{input_unit}]",
-        "files": [str(f) for f in files],
-        "parameters": [
-            {"name": n, "value": _json_number(v), "std_error": _json_number(se)}
-            for n, v, se in zip(result.names, result.values, result.std_errors)
-        ],
-        # The parameters' covariance (in the product of their units; null where not
-        # finite): `jaxmr predict` and `jaxmr report` draw the prediction band from it.
-        "covariance": {
-            "names": list(result.names),
-            "matrix": [[_json_number(c) for c in row] for row in result.covariance],
-        },
-        "per_file": [
-            {
-                "file": str(f),
-                "sha256": file_digest(f),
-                "experiment": str(n),
-                "rmse": _json_number(r),  # in `force_unit`
-                "nrmse": _json_number(e),
-                # Where its simulation diverged [s] (`FitResult.diverged_at`), or null.
-                "diverged_at_s": _json_number(d),
-            }
-            for f, n, r, e, d in zip(
-                files,
-                result.experiment_names,
-                result.rmse,
-                result.nrmse,
-                _diverged_times(result),
-            )
-        ],
-        "reason": result.reason,
-        "stop": result.stop.name.lower(),
-        "outcome": result.outcome,
-        "converged": bool(result.converged),
-        "num_steps": int(result.num_steps),
-        "loss": _json_number(result.loss),
-        "unidentified": list(result.unidentified),
-        "poorly_determined": list(result.poorly_determined),
-        "poor_fit": result.poor_fit,
-        "interrupted": bool(result.interrupted),
-        "fit_time_s": round(elapsed, 3),
-    }
-    if selection is not None:
-        report["selection"] = {
-            "holdout": selection.holdout,
-            "folds": list(selection.folds),
-            # The parsimony rule's decision (`Selection.parsimony`), as data.
-            "parsimony": _parsimony_json(selection.parsimony),
-            # Which fit on every file was kept (`Selection.kept`), and their times.
-            "kept": selection.kept,
-            "refit_time_s": _json_seconds(selection.refit_time),
-            "template_time_s": _json_seconds(selection.template_time),
-            "ranking": [
-                {
-                    "template": s.name,
-                    "num_parameters": s.num_parameters,
-                    "fit_time_s": round(s.fit_time, 3),
-                    "screening_time_s": _json_seconds(s.screening_time),
-                    "full_time_s": _json_seconds(s.full_time),
-                    "cv_time_s": _json_seconds(s.cv_time),
-                    "mean_test_nrmse": _json_number(s.mean_test_nrmse),
-                    "outcome": s.outcome,
-                    "median_train_nrmse": _json_number(s.median_train_nrmse),
-                    "median_test_nrmse": _json_number(s.median_test_nrmse),
-                    "stage": s.stage,
-                    "error": s.error,
-                }
-                for s in selection.scores
-            ],
-        }
-    report["smoothing_s"] = [e.smoothing for e in experiments]
-    report["discard_s"] = [e.discard for e in experiments]
+    """The report saved with the model (`jaxmr.fit_report`, which `jaxmr report`
+    reads), with the command's own entries: the fit's wall time and its warnings."""
+    report = jaxmr.fit_report(
+        selection if selection is not None else result,
+        experiments,
+        files=files,
+        template=name,
+    )
+    report["fit_time_s"] = round(elapsed, 3)
     report["warnings"] = warnings
     return report
-
-
-def _parsimony_json(decision) -> dict | None:
-    if decision is None:
-        return None
-    return {
-        "best": decision.best,
-        "chosen": decision.chosen,
-        "reason": decision.reason,
-        "num_records": decision.num_records,
-        "tolerance": decision.tolerance,
-        "candidates": [
-            {"template": n, "median_test_nrmse": _json_number(m)}
-            for n, m in zip(decision.names, decision.median_nrmse)
-        ],
-    }
 
 
 def _diverged_times(result) -> list[float]:
@@ -738,12 +652,3 @@ def _diverged_times(result) -> list[float]:
     if result.diverged_at is None:
         return [math.nan] * len(result.experiment_names)
     return [float(t) for t in result.diverged_at]
-
-
-def _json_number(x):
-    x = float(x)
-    return x if math.isfinite(x) else None
-
-
-def _json_seconds(x):
-    return None if x is None else round(x, 3)

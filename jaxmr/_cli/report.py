@@ -23,7 +23,6 @@ from .files import (
     band_level,
     beyond_range,
     check_device,
-    file_digest,
     fitted_range,
     load_model,
     plan_outputs,
@@ -101,13 +100,19 @@ def _figure_names(paths: Sequence[str]) -> list[str]:
 FITTED, UNSEEN, UNKNOWN = "fitted", "unseen", "unknown"
 
 
-def _fitted_index(path, fit_report: dict) -> int | None:
+def _fitted_index(path, experiment, fit_report: dict) -> int | None:
     """The position of `path` among the fit's files: the same bytes (`sha256`, any
-    name or directory), or the same file under the name the fit was given."""
+    name or directory), the same numbers (`data_sha256`: an experiment fitted from
+    Python and written to another file, `jaxmr.save_fit`), or the same file under
+    the name the fit was given."""
     per_file = fit_report.get("per_file") or []
-    digest = file_digest(path)
+    digest = jaxmr.data.file_digest(path)
     for k, row in enumerate(per_file):
         if isinstance(row, dict) and digest is not None and row.get("sha256") == digest:
+            return k
+    numbers = jaxmr.data.experiment_digest(experiment)
+    for k, row in enumerate(per_file):
+        if isinstance(row, dict) and row.get("data_sha256") == numbers:
             return k
     for k, row in enumerate(per_file):
         if isinstance(row, dict) and isinstance(row.get("file"), str):
@@ -138,7 +143,7 @@ def _as_fitted(files, experiments, fit_report: dict) -> tuple[list, list[str]]:
     }
     result, status = [], []
     for path, e in zip(files, experiments):
-        k = _fitted_index(path, fit_report)
+        k = _fitted_index(path, e, fit_report)
         status.append(UNSEEN if k is None else FITTED)
         changes = {}
         for key, values in fitted.items():

@@ -11,7 +11,8 @@
 - `templates.py`: data-scaled initial models;
 - `select.py`: model selection on held-out data;
 - `design.py`: optimal experiment design (which tests to run) from the same Jacobian;
-- `score.py`: prediction and scores.
+- `score.py`: prediction and scores;
+- `saved.py`: a fit written to a parameter file, with its report.
 """
 
 from .band import (
@@ -28,6 +29,10 @@ from .design import (
 )
 from .fitting import fit as fit, fit_each as fit_each
 from .result import FitResult as FitResult, StopReason as StopReason
+from .saved import (
+    fit_report as fit_report,
+    save_fit as save_fit,
+)
 from .score import (
     moving_average as moving_average,
     nrmse as nrmse,

@@ -13,6 +13,10 @@ from ._csv import (
     read_processing as read_processing,
     write_csv as write_csv,
 )
+from ._digest import (
+    experiment_digest as experiment_digest,
+    file_digest as file_digest,
+)
 from ._experiment import DataWarning as DataWarning, Experiment as Experiment
 from ._files import write_atomically as write_atomically
 from ._loaders import (
