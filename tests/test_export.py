@@ -180,6 +180,35 @@ def test_the_c_controller_gives_the_jax_commands_on_recorded_readings(
     assert "Sample period: 0.001 s" in header
 
 
+@pytest.mark.parametrize("observer", [True, False])
+def test_a_non_finite_reading_is_skipped_alike_in_c_and_jax(
+    tmp_path, skyhook, recorded, observer
+):
+    """One NaN reading (a sensor's dropout) at sample 300: the command there is 0 A
+    and the controller goes on from its state before it, in C and JAX alike (the C
+    had taken the NaN into its filters and commanded 0 A for good, JAX NaN)."""
+    names, inputs, *_ = recorded
+    controller = (
+        skyhook
+        if observer
+        else jaxmr.ObserverBasedController(
+            jaxmr.OnOffSkyhook(1.0), estimator=jaxmr.VelocityEstimator()
+        )
+    )
+    name = "dropout" if observer else "dropout_estimator"
+    c = _compiled(controller, tmp_path, name, names)
+    bad = np.array(inputs)
+    bad[300, 1] = np.nan
+    ours = np.asarray(_replay(controller, names, jnp.asarray(bad))[1])
+    clean = np.asarray(_replay(controller, names, jnp.asarray(inputs))[1])
+    assert ours[300] == 0.0 and np.all(np.isfinite(ours))
+    np.testing.assert_array_equal(ours[:300], clean[:300])
+    # It goes on commanding (not 0 A for good).
+    assert np.ptp(ours[301:]) > 0.25
+    np.testing.assert_allclose(c.run(bad), ours, rtol=0, atol=COMMAND_TOLERANCE)
+    assert f"{name}_state.skipped counts such" in (tmp_path / f"{name}.h").read_text()
+
+
 class _CInTheLoop(jaxmr.AbstractController):
     """The compiled C controller as a jaxmr controller: its state the C struct's
     bytes, each step a pure callback (so that `simulate_system` may call it as it

@@ -6,6 +6,7 @@ from collections.abc import Callable, Sequence
 from typing import Any
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 
 from .._custom_types import PyTree, Scalar
@@ -267,6 +268,33 @@ class ObserverBasedController(AbstractController):
         return ControllerState(estimator, self.observer.init(x, v, first, delay), law)
 
     def __call__(
+        self, measurement, state: ControllerState, plant: DamperPlant
+    ) -> tuple[Scalar, ControllerState]:
+        """The command [A] at this sample and the next state. A sample with a
+        reading that is not finite (a sensor's dropout, a NaN from its driver) is
+        skipped: the command is 0 A (the damper's passive state, as when its power
+        fails) and the state stays as it was, but for the observer's record of that
+        command, so that the next finite sample goes on from it. (Taken in, one NaN
+        stayed in the filters' state for good.) `jaxmr.export_c` does the same."""
+        command, new = self._step(measurement, state, plant)
+        finite = jnp.all(
+            jnp.stack(
+                [jnp.all(jnp.isfinite(jnp.asarray(v))) for v in measurement.values()]
+            )
+        )
+        zero = jnp.zeros_like(command)
+        kept = state
+        if self.observer is not None:
+            assert isinstance(state.observer, ObserverState)
+            kept = ControllerState(
+                state.estimator,
+                self.observer.commanded(state.observer, zero),
+                state.law,
+            )
+        new = jax.tree.map(lambda a, b: jnp.where(finite, a, b), new, kept)
+        return jnp.where(finite, command, zero), new
+
+    def _step(
         self, measurement, state: ControllerState, plant: DamperPlant
     ) -> tuple[Scalar, ControllerState]:
         merged, estimator = self._estimated(measurement, state.estimator)

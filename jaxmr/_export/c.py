@@ -26,6 +26,16 @@ from .write import write_outputs
 # Helpers of every generated source; those it does not call are left out (an unused
 # static function is a warning, and the code must compile with -Wall -Werror).
 _HELPERS = r"""
+/* Whether every one of the n values is finite (ObserverBasedController's skip) */
+static int all_finite(const double *x, int n)
+{
+    int k;
+    for (k = 0; k < n; ++k) {
+        if (!isfinite(x[k])) return 0;
+    }
+    return 1;
+}
+
 /* jnp.clip */
 static double clip(double x, double lo, double hi)
 {
@@ -417,8 +427,9 @@ typedef struct {{
         members.append(f"    {name}_estimator estimator;")
     if observer is not None:
         members.append(f"    {name}_observer observer;")
-    if not members:
-        members.append("    int unused; /* the law keeps no state */")
+    members.append(
+        "    unsigned long skipped; /* samples skipped for a non-finite input */"
+    )
     law_name = type(controller.law).__name__
     biases = ""
     if estimator is not None:
@@ -439,7 +450,11 @@ typedef struct {{
    sample's measurements, then {name}_step at every sample (the first included),
    every {dt!r} s; its command [A] is meant to act {delay} sample(s) later, as the
    controller was tuned. Dependency-free C99 (math.h), no allocation, double
-   precision; the whole state is {name}_state.{biases} */
+   precision; the whole state is {name}_state.{biases}
+   A sample with an input that is not finite (a sensor's dropout) is skipped, as
+   the JAX controller skips it: the command is 0 A (the damper's passive state),
+   the state is kept for the next sample, and {name}_state.skipped counts such
+   samples (a status to watch). */
 #ifndef {macro}_H
 #define {macro}_H
 
@@ -552,12 +567,18 @@ void {name}_init({name}_state *state, const double inputs[{macro}_N_INPUTS])
     observe(&probe, inputs, &r);
     first = clip(law_command(&r, &probe), 0.0, {i_max});
     observer_init(&state->observer, r.damper_displacement, r.damper_velocity, first);
+    state->skipped = 0;
 }}""")
         pieces.append(f"""\
 double {name}_step({name}_state *state, const double inputs[{macro}_N_INPUTS])
 {{
     readings r;
     double command;
+    if (!all_finite(inputs, {macro}_N_INPUTS)) {{
+        state->skipped += 1;
+        observer_commanded(&state->observer, 0.0);
+        return 0.0;
+    }}
     read_inputs(inputs, {estimator_arg}, &r);
     observe(&state->observer, inputs, &r);
     command = clip(law_command(&r, &state->observer), 0.0, {i_max});
@@ -566,8 +587,8 @@ double {name}_step({name}_state *state, const double inputs[{macro}_N_INPUTS])
 }}""")
     else:
         estimator_arg = "&state->estimator" if estimator is not None else "0"
-        init_body = (
-            zero_estimator if estimator is not None else "    state->unused = 0;"
+        init_body = (zero_estimator + "\n" if estimator is not None else "") + (
+            "    state->skipped = 0;"
         )
         pieces.append(f"""\
 void {name}_init({name}_state *state, const double inputs[{macro}_N_INPUTS])
@@ -579,6 +600,10 @@ void {name}_init({name}_state *state, const double inputs[{macro}_N_INPUTS])
 double {name}_step({name}_state *state, const double inputs[{macro}_N_INPUTS])
 {{
     readings r;
+    if (!all_finite(inputs, {macro}_N_INPUTS)) {{
+        state->skipped += 1;
+        return 0.0;
+    }}
     read_inputs(inputs, {estimator_arg}, &r);
     return clip(law_command(&r, 0), 0.0, {i_max});
 }}""")
