@@ -109,7 +109,11 @@ def test_patience_counts_the_relaxed_loss_s_progress_too():
     )
     settings = dict(parameters=c_sky, steps=8, patience=3, progress=False)
     hard = tune(CAR, jaxmr.Skyhook(best, 1.0), TRAIN, T, learning_rate=1.0, **settings)
-    assert hard.reason == "stalled: no improvement in 3 steps", hard.reason
+    # The start is kept, and the reason says so with what to try.
+    kept = (
+        "; no step improved on the start, which is kept: try a smaller `learning_rate`"
+    )
+    assert hard.reason == "stalled: no improvement in 3 steps" + kept, hard.reason
     assert len(hard.history) == 4 and hard.simulations == 4 * 2
     soft = tune(
         CAR,
@@ -121,7 +125,7 @@ def test_patience_counts_the_relaxed_loss_s_progress_too():
         learning_rate=0.1,
         **settings,
     )
-    assert soft.reason == "reached steps = 8", soft.reason
+    assert soft.reason == "reached steps = 8" + kept, soft.reason
     # No hard check improved on the start after step 0, and the start is returned,
     # judged and handed back hard although it came in relaxed.
     assert len(set(soft.history)) == 1, soft.history
@@ -260,6 +264,7 @@ def test_annealed_tuning_is_judged_on_the_hard_law():
     # Soft from 0.3 to 0.05 over four steps, checked every second step: the losses
     # reported are the hard law's (computed again here by `evaluate`), and the
     # held-out loss is the returned controller's on the validation roads.
+    lines = []
     result = tune(
         CAR,
         FAR,
@@ -271,8 +276,11 @@ def test_annealed_tuning_is_judged_on_the_hard_law():
         check_every=2,
         learning_rate=1.0,
         validation=HELD_OUT,
-        progress=False,
+        progress=lambda step, loss: lines.append((step, loss)),
     )
+    # The last progress line is the loss returned (the final check's, where it
+    # improved: the lines had ended before it).
+    assert lines[-1][1] == result.loss and "no step improved" not in result.reason
     assert float(result.controller.temperature) == 0.0
     assert result.initial_loss == pytest.approx(mean_comfort(FAR), rel=1e-10)
     assert result.loss == pytest.approx(mean_comfort(result.controller), rel=1e-10)

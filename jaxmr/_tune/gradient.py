@@ -291,8 +291,16 @@ def tune(
             # The rate and step as arrays: one program for every step.
             u, m, s = _adam(u, m, s, grads, jnp.asarray(rates[k]), jnp.asarray(k + 1.0))
         if relaxed and checked_u is not u and not reason.startswith("stalled"):
+            before = best_loss
             check(u, steps)
             history[-1] = best_loss
+            if best_loss < before:  # the last line said the loss before this check
+                report(len(history), best_loss)
+        if best_step == 0 and len(history) > 1:
+            reason += (
+                "; no step improved on the start, which is kept: try a smaller "
+                "`learning_rate`"
+            )
     except KeyboardInterrupt:
         reason = f"interrupted at step {len(history) + 1}; the best parameters are kept"
     return tune_result(
