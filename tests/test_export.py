@@ -209,6 +209,20 @@ def test_a_non_finite_reading_is_skipped_alike_in_c_and_jax(
     assert f"{name}_state.skipped counts such" in (tmp_path / f"{name}.h").read_text()
 
 
+def test_the_default_inputs_are_in_the_sensors_order(tmp_path, car):
+    """With an estimator and no `measurements=`, the C inputs are the car's
+    realistic sensors in `Sensors.names` order, the order `sol.measured` is laid
+    out in (the default had been another: a deflection read as an acceleration)."""
+    controller = jaxmr.ObserverBasedController(
+        jaxmr.OnOffSkyhook(1.0), estimator=jaxmr.VelocityEstimator()
+    )
+    jaxmr.export_c(controller, tmp_path, name="ordered")
+    header = (tmp_path / "ordered.h").read_text()
+    names = jaxmr.realistic_sensors(car).names
+    for k, n in enumerate(names):
+        assert f"#define ORDERED_IN_{n.upper()} {k} " in header
+
+
 class _CInTheLoop(jaxmr.AbstractController):
     """The compiled C controller as a jaxmr controller: its state the C struct's
     bytes, each step a pure callback (so that `simulate_system` may call it as it

@@ -9,8 +9,10 @@ from .._control.state_space import POSITIONS
 from .syntax import check_identifier
 
 # The quarter car's realistic sensors (`realistic_sensors(QuarterCar)`), the default
-# with an estimator.
-CAR = ("body_acceleration", "wheel_acceleration", "damper_displacement")
+# with an estimator, in their `Sensors.names` order (sorted), the order a user lays
+# out `SystemSolution.measured`'s readings in (another default order had fed the
+# exported controller a deflection as an acceleration without a word).
+CAR = ("body_acceleration", "damper_displacement", "wheel_acceleration")
 ESTIMATES = (
     "body_velocity",
     "wheel_velocity",
