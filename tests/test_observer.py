@@ -230,6 +230,24 @@ def _windows(error, width):
     return np.max(np.abs(np.asarray(error)).reshape(-1, width), axis=1)
 
 
+def test_an_observer_stepped_too_long_for_its_damper_is_warned_of(car):
+    """The UTFSM Spencer damper as the observer's nominal model at its default 4
+    substeps on a rough road: its stiffness along the run asks for more, and the
+    warning says how many (the passenger car's own damper at 4 substeps raises nothing: every other
+    closed loop here runs with warnings as errors)."""
+    controller = jaxmr.ObserverBasedController(
+        SKYHOOK,
+        estimator=jaxmr.VelocityEstimator(),
+        observer=jaxmr.DamperObserver(jaxmr.utfsm_spencer(), gain=0.3),
+    )
+    sensors = jaxmr.realistic_sensors(car)
+    rough = jaxmr.iso8608_road("D", 25.0, T, jax.random.key(0))
+    with pytest.warns(UserWarning, match=r"4 RK4 substeps .* give it `substeps=\d+`"):
+        jaxmr.simulate_system(
+            car, rough, controller, T, sensors=sensors, key=jax.random.key(1)
+        )
+
+
 def test_the_observer_tracks_the_device_from_a_wrong_state(oracle):
     z_true = np.asarray(oracle.states[:, 4])  # the device's Bouc–Wen state [m]
     for gain in (0.0, 0.5):  # no correction (no load cell), then a load cell's
