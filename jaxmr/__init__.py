@@ -48,6 +48,7 @@ if TYPE_CHECKING:
         VelocityEstimator as VelocityEstimator,
         feature_scales as feature_scales,
         realistic_sensors as realistic_sensors,
+        replay as replay,
         with_temperature as with_temperature,
     )
     from ._current_dynamics import (

@@ -40,29 +40,14 @@ def _observer_based(law, damper=None, gain=0.1):
     )
 
 
-# The device a controller with an observer never reads (it inverts its own model).
-_UNREAD = jaxmr.DamperPlant(
-    jaxmr.passenger_car_mr_damper(),
-    jnp.full(2, jnp.nan),
-    jnp.asarray(jnp.nan),
-    jnp.asarray(jnp.nan),
-)
-
-
-@eqx.filter_jit
 def _replay(controller, names, inputs):
-    """The JAX controller's state after the last row of `inputs` and its commands [A]
-    on the rows (its `init` at the first, then one call per row), as
+    """The JAX controller's states and its commands [A] on the rows of `inputs`
+    (`jaxmr.replay`: its `init` at the first, then one call per row), as
     `simulate_system` runs it."""
-
-    def measurement(row):
-        return {n: row[i] for i, n in enumerate(names)}
-
-    def one(state, row):
-        command, state = controller(measurement(row), state, _UNREAD)
-        return state, command
-
-    return jax.lax.scan(one, controller.init(measurement(inputs[0])), inputs)
+    commands, states = jaxmr.replay(
+        controller, {n: inputs[:, i] for i, n in enumerate(names)}
+    )
+    return states, commands
 
 
 class _Margin(jaxmr.AbstractController):
@@ -221,6 +206,18 @@ def test_the_default_inputs_are_in_the_sensors_order(tmp_path, car):
     names = jaxmr.realistic_sensors(car).names
     for k, n in enumerate(names):
         assert f"#define ORDERED_IN_{n.upper()} {k} " in header
+
+
+def test_replay_refuses_what_it_cannot_run(skyhook, recorded):
+    names, inputs, *_ = recorded
+    log = {n: inputs[:, i] for i, n in enumerate(names)}
+    with pytest.raises(ValueError, match="1-D array of one length"):
+        jaxmr.replay(skyhook, {**log, names[0]: inputs[:-1, 0]})
+    with pytest.raises(KeyError, match="'damper_displacement' is not measured"):
+        jaxmr.replay(skyhook, {n: c for n, c in log.items() if n != names[1]})
+    # A law that inverts the damper with no observer: there is no device to read.
+    with pytest.raises(Exception, match="no device to read"):
+        jaxmr.replay(jaxmr.Skyhook(2000.0, 1.0), {"body_velocity": inputs[:, 0]})
 
 
 class _CInTheLoop(jaxmr.AbstractController):
@@ -508,7 +505,7 @@ def test_the_c_controller_gives_the_jax_commands(tmp_path, case):
     if factors is not None:  # the same commands, and the margin in the law's state
         margin = _Margin(controller.law, factors)
         replayed = eqx.tree_at(lambda c: c.law, controller, margin)
-    final, ours = _replay(replayed, names, jnp.asarray(inputs))
+    states, ours = _replay(replayed, names, jnp.asarray(inputs))
     ours = np.asarray(ours)
     assert np.ptp(ours) > 0.3  # the law acts
     if factors is not None:
@@ -518,7 +515,7 @@ def test_the_c_controller_gives_the_jax_commands(tmp_path, case):
         # 1e-6 of the switch (measured: 3e-3 groundhook, 8e-2 clipped-optimal, 8e-4
         # clipped-optimal on estimated positions), so every decision is the same in
         # both and the commands agree exactly.
-        assert float(final.law) > 1e-6
+        assert float(states.law[-1]) > 1e-6  # the smallest |ŝ| over the run
     c = _compiled(controller, tmp_path, "law", names)
     np.testing.assert_allclose(c.run(inputs), ours, rtol=0, atol=COMMAND_TOLERANCE)
 

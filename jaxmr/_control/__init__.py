@@ -20,6 +20,7 @@ from .lyapunov import LyapunovController as LyapunovController
 from .observer import DamperObserver as DamperObserver
 from .observer_based import ObserverBasedController as ObserverBasedController
 from .power_driven import PowerDrivenDamper as PowerDrivenDamper
+from .replay import replay as replay
 from .riccati import (
     lqr as lqr,
     solve_lyapunov as solve_lyapunov,
