@@ -290,6 +290,25 @@ def test_a_fit_saved_from_python_reads_as_the_command_lines(
         jaxmr.save_fit(dahl_fit, experiments[:1], tmp_path / "x.json")
 
 
+@pytest.mark.parametrize(
+    "width, words",
+    [
+        (0.4, "well determined"),
+        (0.6, "part of the error"),
+        (1.5, "accounts for much"),
+    ],
+)
+def test_the_band_verdict_has_three_levels(width, words):
+    """The band's median half-width against the median RMSE: two nearly equal
+    shares (48 % and 62 % in a user's report) no longer get opposite advice."""
+    from jaxmr._cli.report import FITTED, _band_markdown
+
+    # (file, experiment, status, input, discard, rmse, nrmse, band half-width)
+    rows = [("a.csv", "a", FITTED, 0.0, 0.0, 1.0, 0.1, width)]
+    text = "\n".join(_band_markdown(rows, 0.95, "N", None))
+    assert words in text
+
+
 def _columns(path) -> dict[str, np.ndarray]:
     """A CSV's columns by name (the band's too)."""
     with open(path, newline="") as f:

@@ -509,11 +509,18 @@ def _band_markdown(rows, level: float, force_unit: str, no_band) -> list[str]:
         width = float(np.median([r[7] for r in chosen]))
         error = float(np.median([r[5] for r in chosen]))
         share = width / error if error > 0 else math.inf
+        # Three levels, so that two nearly equal shares do not get opposite advice.
         if share < 0.5:
             verdict = (
                 "the parameters are well determined for these inputs, and the error "
                 "is the noise or the model's structure, which more tests of the same "
                 "kind will not remove"
+            )
+        elif share < 1.0:
+            verdict = (
+                "the parameters' uncertainty is part of the error here, beside the "
+                "noise and the model's structure: tests that excite these inputs "
+                "(jaxmr design) would narrow the band, not the rest"
             )
         else:
             verdict = (
