@@ -518,6 +518,10 @@ def test_the_c_controller_gives_the_jax_commands(tmp_path, case):
         assert float(states.law[-1]) > 1e-6  # the smallest |ŝ| over the run
     c = _compiled(controller, tmp_path, "law", names)
     np.testing.assert_allclose(c.run(inputs), ours, rtol=0, atol=COMMAND_TOLERANCE)
+    # The header says where an estimator runs without a wheel accelerometer.
+    unmeasured = controller.estimator is not None and "wheel_acceleration" not in names
+    header = (tmp_path / "law.h").read_text()
+    assert ("No wheel accelerometer" in header) == unmeasured
 
 
 # -- StableHLO -------------------------------------------------------------------------

@@ -441,6 +441,12 @@ typedef struct {{
             else "\n   The accelerometers' biases start from their readings at rest,"
             "\n   as the estimator was given them."
         )
+        if "wheel_acceleration" not in p.inputs:
+            biases += (
+                "\n   No wheel accelerometer among the inputs: the estimator takes the"
+                "\n   wheel's acceleration as 0 (the deflection rate from the deflection"
+                "\n   sensor alone; a fixed ground, or a car's wheel not measured)."
+            )
     header = f"""\
 /* {name}.h: a semi-active controller exported by jaxmr {__version__}
    (jaxmr.export_c): {law_name}{" with a velocity estimator" if estimator else ""}\
