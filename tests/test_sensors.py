@@ -73,6 +73,21 @@ def test_a_slower_converter_holds_its_reading():
         _read(jaxmr.Sensor(rate=300.0), truth)
 
 
+def test_a_sensor_saturates_at_its_full_scale():
+    truth = 3.0 * jnp.sin(0.01 * jnp.arange(1000.0))
+    r = np.asarray(_read(jaxmr.Sensor(full_scale=1.0, quantum=1 / 2048), truth))
+    inside = np.abs(np.asarray(truth)) < 1.0
+    assert np.max(np.abs(r)) == 1.0
+    assert np.max(np.abs(r[inside] - np.asarray(truth)[inside])) <= 1 / 4096 + 1e-12
+    np.testing.assert_array_equal(r[~inside], np.sign(np.asarray(truth)[~inside]))
+    # The car's wheel accelerometer reads at most its ±50 g.
+    car = jaxmr.passenger_car(jaxmr.passenger_car_mr_damper())
+    wheel = jaxmr.realistic_sensors(car).sensors["wheel_acceleration"]
+    assert float(wheel.full_scale) == pytest.approx(50 * 9.81, rel=1e-3)
+    with pytest.raises(ValueError, match="full_scale"):
+        jaxmr.Sensor(full_scale=0.0)
+
+
 def test_an_ideal_sensor_reads_the_truth_exactly():
     truth = jnp.sin(0.01 * jnp.arange(500.0))
     np.testing.assert_array_equal(_read(jaxmr.Sensor(), truth), truth)

@@ -35,8 +35,9 @@ class Sensor(eqx.Module):
     $$\tau\dot y = u - y,\quad \tau = \frac{1}{2\pi f_c},\qquad
     r_k = Q\big(y(t_k) + b + \sigma\,\varepsilon_k\big),\qquad
     \varepsilon_k \sim \mathcal N(0, 1),$$
-    with $Q(r) = q\,\mathrm{round}(r/q)$, held between conversions when the converter
-    converts every $m$-th controller sample ($r_k = r_{k-1}$ otherwise).
+    with $Q(r) = q\,\mathrm{round}(r/q)$ of the value clipped to the converter's full
+    scale $\pm R$, held between conversions when the converter converts every $m$-th
+    controller sample ($r_k = r_{k-1}$ otherwise).
 
     The lag is discretised at the controller's samples, exactly for a true signal that
     is linear between samples (the ramp-invariant form): content well below the
@@ -62,6 +63,10 @@ class Sensor(eqx.Module):
     - `rate`: the converter's sample rate [Hz] (static), the controller's rate divided
       by a whole number; default `None`, the controller's rate. A faster converter
       is read at the controller's samples: give `None`.
+    - `full_scale`: $R > 0$, the largest reading [the measurement's unit]: a reading
+      beyond $\pm R$ reads $\pm R$ (the transducer or converter saturates, e.g. a
+      ±50 g accelerometer on a pothole); default `inf`. Its gradient is 0 where it
+      saturates, as the reading's is.
     """
 
     noise: Float[Array, ""] = eqx.field(converter=as_float_array, default=0.0)
@@ -69,8 +74,15 @@ class Sensor(eqx.Module):
     bandwidth: Float[Array, ""] = eqx.field(converter=as_float_array, default=math.inf)
     quantum: Float[Array, ""] = eqx.field(converter=as_float_array, default=0.0)
     rate: float | None = eqx.field(static=True, default=None)
+    full_scale: Float[Array, ""] = eqx.field(converter=as_float_array, default=math.inf)
 
     def __check_init__(self):
+        check_concrete(
+            self.full_scale > 0,
+            f"Sensor: `full_scale` must be > 0 (inf: no saturation), got "
+            f"{self.full_scale}.",
+            self.full_scale,
+        )
         check_concrete(
             self.noise >= 0,
             f"Sensor: `noise` must be a standard deviation >= 0, got {self.noise}.",
@@ -274,7 +286,10 @@ class Sensors(eqx.Module):
             a, b0, b1 = sensor.lag(dt)
             y = a * old.filtered + b0 * old.truth + b1 * u
             drawn = sensor.noise * eps[i].astype(dtype)
-            converted = sensor.quantise(y + sensor.bias + drawn)
+            measured = jnp.clip(
+                y + sensor.bias + drawn, -sensor.full_scale, sensor.full_scale
+            )
+            converted = sensor.quantise(measured)
             every = sensor.holds(dt)
             if every == 1:
                 reading = converted
@@ -339,6 +354,7 @@ def _accelerometers(scale, wheel: bool) -> dict[str, Sensor]:
         bias=0.1 / scale,
         bandwidth=200.0,
         quantum=2 * 5 * GRAVITY / 4096 / scale,
+        full_scale=5 * GRAVITY / scale,
     )
     out = {"body_acceleration": body}
     if wheel:
@@ -347,6 +363,7 @@ def _accelerometers(scale, wheel: bool) -> dict[str, Sensor]:
             bias=0.5 / scale,
             bandwidth=200.0,
             quantum=2 * 50 * GRAVITY / 4096 / scale,
+            full_scale=50 * GRAVITY / scale,
         )
     return out
 
@@ -373,20 +390,29 @@ def realistic_sensors(system, *, load_cell: bool = False) -> Sensors:
       rig): ±5 kN, 12 bits, noise 5 N, offset 10 N, 200 Hz; on the rig a torque
       sensor of ±5 N·m, 12 bits, noise 0.005 N·m, offset 0.01 N·m. Default False.
 
+    Every reading saturates at its sensor's range (`Sensor.full_scale`: ±5 g, ±50 g,
+    ±100 mm, ±5 kN; the rig's encoder does not).
+
     **Returns:** a `Sensors`. Adjust one with `Sensors({**s.sensors, name: Sensor(...)})`.
     """
     if isinstance(system, QuarterCar):
         sensors = _accelerometers(1.0, wheel=True)
         sensors["damper_displacement"] = _deflection()
-        force = Sensor(noise=5.0, bias=10.0, bandwidth=200.0, quantum=1e4 / 4096)
+        force = _load_cell(5e3)
     elif isinstance(system, SingleDegreeOfFreedom):
         sensors = _accelerometers(1.0, wheel=False)
         sensors["damper_displacement"] = _deflection()
-        force = Sensor(noise=5.0, bias=10.0, bandwidth=200.0, quantum=1e4 / 4096)
+        force = _load_cell(5e3)
     elif isinstance(system, SASRig):
         sensors = _accelerometers(system.R, wheel=True)
         sensors["damper_displacement"] = Sensor(quantum=2 * math.pi / 4096)
-        force = Sensor(noise=0.005, bias=0.01, bandwidth=200.0, quantum=10.0 / 4096)
+        force = Sensor(
+            noise=0.005,
+            bias=0.01,
+            bandwidth=200.0,
+            quantum=10.0 / 4096,
+            full_scale=5.0,
+        )
     else:
         raise TypeError(
             "realistic_sensors knows the QuarterCar, SingleDegreeOfFreedom and SASRig; "
@@ -399,4 +425,16 @@ def realistic_sensors(system, *, load_cell: bool = False) -> Sensors:
 
 
 def _deflection() -> Sensor:
-    return Sensor(noise=1e-4, bias=1e-3, bandwidth=100.0, quantum=0.2 / 4096)
+    return Sensor(
+        noise=1e-4, bias=1e-3, bandwidth=100.0, quantum=0.2 / 4096, full_scale=0.1
+    )
+
+
+def _load_cell(full_scale: float) -> Sensor:
+    return Sensor(
+        noise=5.0,
+        bias=10.0,
+        bandwidth=200.0,
+        quantum=2 * full_scale / 4096,
+        full_scale=full_scale,
+    )
