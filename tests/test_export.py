@@ -551,6 +551,13 @@ def test_the_stablehlo_program_gives_the_jax_commands(tmp_path, skyhook, recorde
     )
 
 
+def test_a_float32_program_is_warned_of(tmp_path, skyhook, monkeypatch):
+    monkeypatch.setattr(jnp, "result_type", lambda *a: np.dtype("float32"))
+    with pytest.warns(UserWarning, match="export_stablehlo is running in float32"):
+        with pytest.raises(Exception):  # noqa: B017 - only the warning matters here
+            jaxmr.export_stablehlo(skyhook, tmp_path / "f32.stablehlo")
+
+
 def test_an_open_loop_law_exports_on_the_clock_by_default(tmp_path):
     # An open-loop law reads only the time: its export's default input is the clock
     # (it failed with "'time' is not measured" before), and the program follows the

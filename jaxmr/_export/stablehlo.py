@@ -10,6 +10,7 @@ import numpy as np
 from .._control import ObserverBasedController
 from .._control.observer_based import _NoPlant
 from .._control.sensors import readings
+from .._misc import warn_if_float32
 from .plan import plan
 from .write import write_outputs
 
@@ -96,6 +97,12 @@ def export_stablehlo(
 
     **Returns:** the `jax.export.Exported` written.
     """
+    warn_if_float32(
+        "jaxmr.export_stablehlo",
+        needs="the program computes in the default float dtype, and its commands "
+        "then differ from the float64 controller's by float32 rounding, which the "
+        "estimator's integrators and the observer's RK4 accumulate",
+    )
     step, size, names = stablehlo_function(controller, measurements)
     dtype = jnp.result_type(float)
     exported = jax.export.export(jax.jit(step), platforms=tuple(platforms))(
