@@ -269,7 +269,9 @@ def test_cli_writes_the_plan_and_never_overwrites(tmp_path, design):
     )
     params = tmp_path / "params.json"
     report = [{"name": n} for n in design.names]
-    jaxmr.save_model(model, params, parameters=report)
+    # As `jaxmr fit` writes it: the parameters named in its report (a design of
+    # such a file had failed: it read them at the top only).
+    jaxmr.save_model(model, params, report={"parameters": report})
     out = tmp_path / "plan"
     argv = ["design", params, "-k", 3, "--out", out, "--discard", 0]
     argv += ["--amplitudes", *MENU["amplitudes"], "--frequencies", *MENU["frequencies"]]
@@ -278,6 +280,7 @@ def test_cli_writes_the_plan_and_never_overwrites(tmp_path, design):
     status, stdout, stderr = _run(argv)
     assert status == 0, stderr
     assert "jaxmr fit --starts 4" in stdout  # the fit it advises for the plan
+    assert "--noise 1, white: scale them to your rig's noise" in stdout
     with open(out / "plan.csv", newline="") as f:
         rows = list(csv.DictReader(line for line in f if not line.startswith("#")))
     assert [r["test"] for r in rows] == [

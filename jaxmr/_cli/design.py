@@ -154,7 +154,10 @@ def _free_model(model, data: dict, path: str):
 
     if any(is_parameter(x) for x in jax.tree.leaves(model, is_leaf=is_parameter)):
         return model
-    report = data.get("parameters")
+    # `jaxmr fit` (and `jaxmr.save_fit`) name them in the fit report; a file saved
+    # by hand may name them at the top.
+    fit_report = data.get("report") if isinstance(data.get("report"), dict) else {}
+    report = data.get("parameters") or fit_report.get("parameters")
     if not isinstance(report, list) or not report:
         raise CLIError(
             f"{path}: no fit report naming the fitted parameters and no constraint "
@@ -274,6 +277,12 @@ def run(args: argparse.Namespace) -> int:
     except (ValueError, TypeError) as e:
         raise CLIError(str(e)) from e
     print(design, flush=True)
+    print(
+        f"(standard errors for a weighted residual of standard deviation --noise "
+        f"{args.noise:g}, white: scale them to your rig's noise; correlated noise "
+        "widens them. The ranking of the tests does not depend on it.)",
+        flush=True,
+    )
 
     chosen = [out / files[k] for k in design.indices]
     _refuse_existing([out / PLAN] + chosen)
