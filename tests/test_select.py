@@ -429,12 +429,25 @@ def test_select_model_takes_several_starts():
     than the template fitted alone from as many starts."""
     runs = dahl_runs((4.0, 5.0, 6.0), (3.0, 3.0, 3.0))
     options = dict(max_steps=6, statistics_refinement=1, progress=False)
+    # The rule's margin and statistic reach it too (they had gone on to `fit`, a
+    # TypeError, though the docs offer them).
     selection = jaxmr.select_model(
-        {"dahl": dahl_guess()}, runs, finalists=1, starts=2, **options
+        {"dahl": dahl_guess()},
+        runs,
+        finalists=1,
+        starts=2,
+        tolerance=0.05,
+        statistic="mean",
+        **options,
     )
     plain = jaxmr.fit(dahl_guess(), runs, starts=2, **options)
     assert selection.name == "dahl"
     assert selection.result.loss <= plain.loss
+    assert selection.parsimony is not None
+    assert selection.parsimony.tolerance == 0.05
+    # A statistic it does not know is refused before any fit.
+    with pytest.raises(ValueError, match="statistic"):
+        jaxmr.select_model({"dahl": dahl_guess()}, runs, statistic="mode")
 
 
 def _bug(train):

@@ -156,7 +156,8 @@ def _free_model(model, data: dict, path: str):
         return model
     # `jaxmr fit` (and `jaxmr.save_fit`) name them in the fit report; a file saved
     # by hand may name them at the top.
-    fit_report = data.get("report") if isinstance(data.get("report"), dict) else {}
+    saved = data.get("report")
+    fit_report: dict = saved if isinstance(saved, dict) else {}
     report = data.get("parameters") or fit_report.get("parameters")
     if not isinstance(report, list) or not report:
         raise CLIError(

@@ -1043,6 +1043,8 @@ def select_model(
     discard=None,
     smoothing=None,
     stop=None,
+    tolerance: float = PARSIMONY_TOLERANCE,
+    statistic: str = SELECTION_STATISTIC,
     **fit_kwargs,
 ) -> Selection:
     """Select a model by cross-validated held-out error, then refit it on
@@ -1072,6 +1074,8 @@ def select_model(
     - `train`: the experiments to fit on; with `test=None`, all the experiments,
       which `cv_folds` splits into folds.
     - `test`: held-out experiments (one fold), or `None` for the folds.
+    - `tolerance`, `statistic`: the rule's margin and statistic (`parsimony`;
+      defaults `PARSIMONY_TOLERANCE`, 0, and `SELECTION_STATISTIC`, the median).
     - `discard`, `smoothing`: [s], one number or one per experiment of `train` (and
       then of `test`, in that order), as `fit`'s (`None`: each experiment's own).
 
@@ -1119,6 +1123,8 @@ def select_model(
     holdout = "; ".join(descriptions)
     if names_or_models is None:  # the library's defaults, as `jaxmr fit`'s
         names_or_models = default_candidates(everything)
+    # The rule's settings checked before any fit (the rule runs after them all).
+    parsimony(["check"], np.zeros((1, 1)), tolerance, statistic)
     report = _reporter(callback, log)
     first, *others = inputs
     scores = compare_models(
@@ -1142,8 +1148,9 @@ def select_model(
     decision = None
     if not scores[0].result.interrupted:
         scores, decision = _cross_validate(
-            names_or_models, scores, others, report, stop, fit_kwargs
-        )
+            names_or_models, scores, others, report, stop, fit_kwargs,
+            rule=dict(tolerance=tolerance, statistic=statistic),
+        )  # fmt: skip
         if log is not None and decision is not None:
             log(f"parsimony: {decision.reason}")
     best = scores[0]
@@ -1246,7 +1253,7 @@ def _fold_inputs(everything, fold, discards, widths) -> dict:
     )
 
 
-def _cross_validate(names_or_models, scores, others, report, stop, fit_kwargs):
+def _cross_validate(names_or_models, scores, others, report, stop, fit_kwargs, rule):
     """The finalists (candidates fitted in full on the first fold) fitted and scored
     on the `others` folds, their held-out errors pooled over every fold, and the
     parsimony rule's choice first in the ranking: `(scores, Parsimony)`.
@@ -1326,6 +1333,7 @@ def _cross_validate(names_or_models, scores, others, report, stop, fit_kwargs):
                 for s in finalists
             ]
         ),
+        **rule,
     )
     finalists.sort(key=lambda s: (s.name != decision.chosen, s.median_test_nrmse))
     return finalists + rest, decision
