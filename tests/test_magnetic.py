@@ -211,6 +211,32 @@ def test_static_torque_proportional_to_current_and_independent_of_speed(brake):
     np.testing.assert_allclose(torque[:, 0], c_v * np.array([60, 150, 240]) * RPM)
 
 
+def test_the_yield_stress_saturates_past_the_cubic_s_peak(brake):
+    """Past its peak (0.98 T for MRF-132DG) the cubic turned down: the brake's torque
+    fell from 2 A on and opposed the rotation from 6 A (-4.5 N·m at +60 rpm, -70 at
+    10 A). Held at its peak, the torque grows with the current, then stays."""
+    currents = jnp.array([0.5, 1.0, 2.0, 4.0, 6.0, 10.0])
+    sol = jaxmr.sweep(
+        brake,
+        jaxmr.Ramp(60.0 * RPM),
+        currents,
+        jnp.linspace(0.0, 0.002, 3),
+        integrator=jaxmr.FixedStep(1),
+    )
+    torque = np.asarray(sol.force[:, -1])
+    assert np.all(np.diff(torque) >= -1e-9) and torque[-1] > 0, torque
+    disc = brake.hysteresis
+    peak = float(disc.saturation_induction())
+    assert peak == pytest.approx(0.985, abs=0.01)
+    # The yield stress is flat past the peak, and its slope there is 0 (its own).
+    B = jnp.array([peak, 1.5, 4.0])
+    np.testing.assert_allclose(
+        disc.yield_stress(B), disc.yield_stress(peak), rtol=1e-12
+    )
+    slope = jax.grad(lambda b: disc.yield_stress(b))(peak - 1e-9)
+    assert abs(float(slope)) < 1e-3 * float(disc.yield_stress(peak))
+
+
 AMPLITUDES = (0.05, 0.1, 0.2, 0.3, 0.4, 0.5)  # [A] around a 0.5 A bias, at 1 Hz
 LOOP_TS = jnp.linspace(0.0, 2.0, 2001)
 

@@ -23,6 +23,7 @@ class BinghamDisc(AbstractHysteresis):
       + \frac{\pi\eta_f\Omega}{g}\,(R_o^4 - R_i^4),\qquad
       \tau_y = K_1|B_f| + K_2 B_f^2 + K_3|B_f|^3,$$
 
+    ($\tau_y$ held at its peak past it where $K_3 < 0$: `saturation_induction`),
     the integral of $\tau = \tau_y\,\mathrm{sgn}\,\dot\gamma + \eta_f\dot\gamma$,
     $\dot\gamma = r\Omega/g$, over both faces of the disc (the study's eq. 6). The yield
     stress depends on the field's magnitude only (hence $|B_f|$). The motion is the rotor
@@ -61,9 +62,21 @@ class BinghamDisc(AbstractHysteresis):
     # (`jaxmr._parameter.fixed_modes`).
     fit_modes: ClassVar[dict[str, float]] = {"velocity_scale": 0.0}
 
+    def saturation_induction(self) -> Scalar:
+        """The induction [T] past which the yield stress is held at its value there:
+        the peak of the cubic where $K_3 < 0$ (where $dτ_y/dB = 0$), else `inf`."""
+        falls = self.K3 < 0
+        K3 = jnp.where(falls, self.K3, -1.0)  # a safe value where it is unused
+        root = jnp.sqrt(jnp.maximum(self.K2**2 - 3 * self.K1 * K3, 0.0))
+        return jnp.where(falls, -(self.K2 + root) / (3 * K3), jnp.inf)
+
     def yield_stress(self, B_f: Float[ArrayLike, "*shape"]) -> Float[Array, "*shape"]:
-        """$\\tau_y$ [Pa] at fluid induction $B_f$ [T]."""
-        a = jnp.abs(jnp.asarray(B_f))
+        """$\\tau_y$ [Pa] at fluid induction $B_f$ [T], held at its peak past
+        `saturation_induction`: an MR fluid's yield stress saturates with the field,
+        and a cubic fitted below that turns down past its peak (MRF-132DG's at
+        0.98 T), which had made the torque fall and then oppose the rotation (the
+        MRB-107-3 brake at 6 A: -4.5 N·m at +60 rpm)."""
+        a = jnp.minimum(jnp.abs(jnp.asarray(B_f)), self.saturation_induction())
         return a * (self.K1 + a * (self.K2 + a * self.K3))
 
     def yield_torque_per_stress(self) -> Scalar:

@@ -64,7 +64,8 @@ def mrb_107_3(velocity_scale: float = 0.05, sign_scale: float = 0.0) -> Damper:
     - Fluid: Lord MRF-132DG (the study used the older MRF-240BS, whose data are not at
       hand): yield stress fitted through the origin on 0–1 T to the data-sheet curve,
       $K_1$ = 2.33·10⁴ Pa/T, $K_2$ = 1.015·10⁵ Pa/T², $K_3$ = −7.67·10⁴ Pa/T³ (within
-      0.9 kPa of it; the cubic peaks near 1 T, so keep $B_f$ below that); plastic
+      0.9 kPa of it; the cubic peaks at 0.98 T, past which the yield stress is held
+      at its peak, `BinghamDisc.saturation_induction`); plastic
       viscosity 0.1 Pa·s.
     - Disc (assumed, fitting the brake's 92 mm housing): $R_i$ = 10 mm, $R_o$ = 35 mm,
       gap 0.25 mm on each face. The viscous torque is 0.047 N·m at 240 rpm, so the
