@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 import jaxmr
+import jaxmr.data
 
 from .helpers import FITTED_SPENCER, shared_data
 
@@ -137,3 +138,23 @@ def test_simulate_warns_beyond_a_loaded_models_range(params):
     with warnings.catch_warnings():
         warnings.simplefilter("error", jaxmr.OutsideFittedRange)
         jaxmr.simulate(model, slow, 0.5, ts, integrator=step)
+
+
+def test_the_library_refuses_records_of_another_device():
+    """A fit of a damper's and a brake's records together (N with N·m), and a damper
+    fitted on linear records predicting a brake's: refused, as the command line
+    refuses them (the library had fitted and predicted without a word)."""
+    t = np.linspace(0.0, 1.0, 501)
+    x = 0.01 * np.sin(2 * np.pi * 2 * t)
+    v = np.gradient(x, t)
+    linear = jaxmr.data.Experiment(t, x, v, 0.5, 1e3 * np.tanh(v / 0.01), name="lin")
+    rotary = jaxmr.data.Experiment(
+        t, 5 * x, 5 * v, 0.5, 2 * np.tanh(v / 0.05), name="rot", rotary=True
+    )
+    with pytest.raises(ValueError, match=r"mix devices \(linear, current-driven: lin"):
+        jaxmr.fit(jaxmr.sas_brake_bingham(), [linear, rotary], progress=False)
+    damper = jaxmr.with_fitted_range(
+        jaxmr.passenger_car_mr_damper(), jaxmr.FittedRange.from_experiments([linear])
+    )
+    with pytest.raises(ValueError, match="fitted on a linear, current-driven device"):
+        jaxmr.predict(damper, rotary)

@@ -21,6 +21,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._custom_types import Array, Bool, Float, Int
+from .._damper import fitted_range_in
 from .._integrate import FixedStep
 from .._misc import to_device
 from .._signal import _hermite, _hermite_slope
@@ -232,6 +233,41 @@ def experiment_list(experiments, name: str = "experiments") -> list:
     return list(experiments)
 
 
+def _device_words(rotary, drive) -> str:
+    return f"{'rotary' if rotary else 'linear'}, {drive}-driven"
+
+
+def check_one_device(experiments: Sequence, model=None) -> None:
+    """`ValueError` where `experiments` mix devices (linear and rotary: metres and
+    radians, newtons and newton-metres; or current and voltage inputs), or where
+    `model` holds the range it was fitted on (`FittedRange`) and that was another
+    device's. (The command line refused both; the library fitted N with N·m and
+    predicted a damper's force for a brake's record.) Experiments without
+    `rotary`/`drive` (duck-typed) are taken as linear and current-driven."""
+    kinds = {}
+    for e in experiments:
+        kind = (bool(getattr(e, "rotary", False)), getattr(e, "drive", "current"))
+        kinds.setdefault(kind, []).append(str(getattr(e, "name", "")))
+    if len(kinds) > 1:
+        listed = "; ".join(
+            f"{_device_words(*kind)}: {', '.join(names)}"
+            for kind, names in kinds.items()
+        )
+        raise ValueError(
+            f"the experiments mix devices ({listed}): give the records of one "
+            "device, driven by one kind of input."
+        )
+    fitted = None if model is None else fitted_range_in(model, strict=False)
+    if fitted is not None and kinds:
+        (kind,) = kinds
+        if kind != (bool(fitted.rotary), fitted.drive):
+            raise ValueError(
+                f"the model was fitted on a {_device_words(fitted.rotary, fitted.drive)} "
+                f"device and the experiments are a {_device_words(*kind)} one's: its "
+                "forces there would mean nothing."
+            )
+
+
 def per_experiment(
     value, experiments: Sequence, what: str, item: str = "experiment"
 ) -> np.ndarray:
@@ -367,6 +403,7 @@ def pack(
     experiments = experiment_list(experiments)
     if not experiments:
         raise ValueError("`experiments` is empty: give at least one experiment.")
+    check_one_device(experiments)
     if weighting not in ("nrmse", "force"):
         raise ValueError(f"`weighting` must be 'nrmse' or 'force', got {weighting!r}.")
     policy = StepPolicy() if policy is None else policy

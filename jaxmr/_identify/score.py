@@ -14,6 +14,7 @@ from .._integrate import FixedStep
 from .data import (
     StepPolicy,
     as_step_policy,
+    check_one_device,
     experiment_list,
     pack,
     per_experiment,
@@ -56,6 +57,7 @@ def predict_all(
     experiments = experiment_list(experiments)
     if not experiments:
         return []
+    check_one_device(experiments, model)
     data = pack(
         experiments,
         as_step_policy(integrator),
