@@ -335,6 +335,9 @@ def test_backstepping_realises_the_desired_torque_and_the_source_formula():
             lambda: LyapunovController(-jnp.eye(4), jnp.ones(4), I_MAX),
             "positive definite",
         ),
+        # Not "[0, i_max] = [0, -1.0]": i_max defaults to the current.
+        (lambda: jaxmr.ConstantCurrent(-1.0), "`current` must be >= 0 A"),
+        (lambda: jaxmr.ConstantCurrent(2.0, 1.0), r"\[0, i_max\] = \[0, 1.0\]"),
     ],
 )
 def test_bad_arguments_are_named(make, message):

@@ -138,8 +138,16 @@ class ConstantCurrent(AbstractController):
         self.i_max = current if i_max is None else i_max
 
     def __check_init__(self):
+        # A negative current first (the range would read [0, -1] A: i_max defaults
+        # to the current itself).
         check_concrete(
-            lambda current, i_max: (current >= 0) & (current <= i_max),
+            lambda current: current >= 0,
+            f"ConstantCurrent: `current` must be >= 0 A (an MR device's coil current "
+            f"sets a field's magnitude), got {self.current}.",
+            self.current,
+        )
+        check_concrete(
+            lambda current, i_max: current <= i_max,
             f"ConstantCurrent: `current` must lie in [0, i_max] = [0, {self.i_max}] A, "
             f"got {self.current}.",
             self.current,
