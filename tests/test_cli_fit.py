@@ -900,7 +900,7 @@ def test_outcome_words_follow_converged(dahl_fit):
     stop = jaxmr.StopReason
     stalled = _as(dahl_fit, stop.STALLED)
     assert stalled.converged and stalled.outcome == (
-        "converged: no relative improvement left (the noise floor)"
+        "converged: no relative improvement left (a minimum)"
     )
     lm = "converged (Levenberg–Marquardt's tolerance met)"
     assert _as(dahl_fit, stop.TOLERANCE).outcome == lm

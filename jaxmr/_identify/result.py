@@ -51,8 +51,8 @@ class StopReason(enum.Enum):
     TOLERANCE = "converged (Levenberg–Marquardt's tolerance met)"
     STALLED = (
         "stalled: no relative improvement above `ftol` in `patience` steps, or in "
-        "3 accepted steps with a Gauss–Newton model that promises no more (the noise "
-        "floor)"
+        "3 accepted steps with a Gauss–Newton model that promises no more (a "
+        "minimum)"
     )
     MAX_STEPS = "reached max_steps"
     SOLVER_FAILED = (
@@ -244,7 +244,9 @@ class FitResult:
         stop = self.stop
         if self.converged:
             if stop is StopReason.STALLED:
-                verdict = "converged: no relative improvement left (the noise floor)"
+                # "a minimum", not "the noise floor": users read that as the
+                # measurement's, which a fit at NRMSE 0.2 is far above.
+                verdict = "converged: no relative improvement left (a minimum)"
             else:  # "converged (Levenberg–Marquardt's tolerance met)"
                 verdict = stop.message
             return self._poorly(verdict)
