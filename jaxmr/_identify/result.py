@@ -634,11 +634,31 @@ MAX_CORRECTION = 10.0
 def lag1(r) -> float:
     """The lag-1 autocorrelation of a residual series (about 0, not its mean: a fit
     without an offset leaves a mean in the residual, and it is correlation too)."""
+    return autocorrelation(r, 1)
+
+
+def autocorrelation(r, lag: int) -> float:
+    """The lag-`lag` autocorrelation of a residual series (about 0, as `lag1`)."""
     r = np.asarray(r, float)
     energy = float(r @ r)
-    if r.size < 2 or not energy > 0:
+    if r.size <= lag or not energy > 0:
         return 0.0
-    return float(r[1:] @ r[:-1]) / energy
+    return float(r[lag:] @ r[:-lag]) / energy
+
+
+def ar_coefficient(r) -> float:
+    """The prewhitening filter's coefficient of a residual series: its lag-1
+    autocorrelation ρ₁, or, where ρ₁ is clearly above 0 (beyond 2/√n) and the ratio
+    ρ₂/ρ₁ is larger, that ratio: white noise beside an AR(1) disturbance (an
+    ARMA(1,1) series) has ρ_k = ρ₁ φ^(k−1), so the ratio is the disturbance's own φ
+    where ρ₁ is only φ times its share of the variance (2 % white + 2 % AR(1) at 0.9
+    gave ρ₁ = 0.45, and prewhitened with it, 95 % intervals covered 81 %). For AR(1)
+    noise both are φ."""
+    r = np.asarray(r, float)
+    rho1 = lag1(r)
+    if r.size < 3 or not rho1 > 2 / np.sqrt(r.size):
+        return rho1
+    return max(rho1, autocorrelation(r, 2) / rho1)
 
 
 def _backward_filter(J, rho: float):
@@ -679,7 +699,7 @@ def _long_run(r, J, prewhiten: bool, kernel: bool):
         # A fitted residual's lag-1 autocorrelation is low by about (1 + 3ρ)/n
         # (Kendall's bias of an AR(1) estimate with a fitted mean): 0.016 at ρ =
         # 0.98, n = 250, where 1/(1 − ρ) is then off by 45 %.
-        rho = lag1(r)
+        rho = ar_coefficient(r)
         rho = float(np.clip(rho + (1 + 3 * rho) / len(r), -RHO_MAX, RHO_MAX))
         a0 = np.sqrt(1 - rho**2)
         u = np.concatenate([[a0 * r[0]], r[1:] - rho * r[:-1]])
