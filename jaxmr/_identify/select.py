@@ -878,9 +878,15 @@ def _complexity(name: str) -> tuple[int, bool]:
 # mean, geometric mean and trimmed mean were replayed, and the median under
 # screening had the lowest worst regret (8.4 %; the mean lost 33 % on the UTFSM
 # tests, where one held-out record that a rich model fitted badly outweighed its
-# better fit of the others). The margin stays a parameter
-# (`parsimony(tolerance=...)`), and so does the statistic (`statistic=...`).
-PARSIMONY_TOLERANCE = 0.0
+# better fit of the others). In session 27 a margin of 0.2 % (a tie in the
+# fourth digit of an NRMSE) joined the replayed ones: a user's Bouc–Wen data chose
+# Spencer at 0.0281332 against Bouc–Wen's 0.0281363 (Spencer with c1 -> inf is
+# Bouc–Wen), and the fresh simulated SAS brake did the same (0.03657 against
+# 0.03658). On the choice datasets it chose as 0 did on every one (the same regrets),
+# and the rule's tie-break (the larger margin, the simpler model) took it:
+# leave-one-dataset-out worst regret 2.4 %, median 0, as before. The margin stays a
+# parameter (`parsimony(tolerance=...)`), and so does the statistic (`statistic=...`).
+PARSIMONY_TOLERANCE = 0.002
 
 
 def _trimmed_mean(errors: np.ndarray) -> float:
