@@ -305,6 +305,11 @@ def test_a_redundant_group_is_named_once():
     assert len(messages) == 1, messages
     assert all(f"{n} = " in messages[0] for n in "abc") and "d = " not in messages[0]
     assert "3 parameters are redundant" in messages[0]
+    # The least determined is named to fix first (all three 2.0 here: the first),
+    # not "all but one" of members that may be known to a few per cent.
+    assert "fix the least determined, a (jaxmr.Fixed)" in messages[0]
+    weak_c = poorly_determined(values, np.array([0.05, 0.1, 2.0, 0.1]), corr, names)
+    assert "fix the least determined, c (jaxmr.Fixed)" in weak_c[0]
     # A pair correlated beyond 0.99 is one group of two, the rest stays silent.
     pair = np.eye(4)
     pair[0, 1] = pair[1, 0] = 0.999

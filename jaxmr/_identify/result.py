@@ -523,11 +523,22 @@ def poorly_determined(values, std, corr, names, magnitude=None) -> list[str]:
             f"{names[k]} = {values[k]:.4g} ± {std[k]:.3g} ({relative[k]:.0%})"
             for k in group
         )
+        # Which to fix first: the least determined (well-determined members were
+        # named beside it, and "fix all but one" had advised fixing them too).
+        weakest = group[int(np.argmax(relative[group]))]
+        of = (
+            ""
+            if np.all(magnitude[group] == np.abs(values[group]))
+            else " (each error relative to its magnitude: its value, or the size at "
+            f"which it would move the force by {EFFECT_FLOOR:.0%} of the model's "
+            "largest term)"
+        )
         messages.append(
             f"poorly determined: {len(group)} parameters are redundant, the data "
             f"determine a combination of them, not each (correlations up to "
-            f"{np.max(block):.4f}): {members}; fix all but one of them (jaxmr.Fixed) "
-            "or add experiments that tell them apart."
+            f"{np.max(block):.4f}): {members}{of}; fix the least determined, "
+            f"{names[weakest]} (jaxmr.Fixed), then all but one of them if the others "
+            "stay so, or add experiments that tell them apart."
         )
     for k in np.flatnonzero(~loose & ~grouped & (relative > MAX_RELATIVE_ERROR)):
         of = (
