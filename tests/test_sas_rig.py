@@ -227,6 +227,15 @@ def test_bad_parameters_raise_clear_errors(overrides, match):
         sas_rig(**overrides)
 
 
+def test_a_damper_fitted_on_a_linear_device_is_refused():
+    """A model fitted in metres and newtons (its `FittedRange` says linear) ran in the
+    rig as if it were the brake."""
+    linear = jaxmr.FittedRange((-0.01, 0.01), (-0.1, 0.1), (0.0, 1.0))
+    damper = jaxmr.with_fitted_range(jaxmr.passenger_car_mr_damper(), linear)
+    with pytest.raises(ValueError, match="fitted on a linear device's records"):
+        sas_rig(damper)
+
+
 def test_bad_parameters_are_caught_under_jit_too(rig):
     # A traced bad value passes construction and is caught by the simulation.
     bad = eqx.tree_at(lambda r: r.m1, rig, jnp.asarray(-1.0, dtype=float))

@@ -509,7 +509,11 @@ def fit_each(
 
     **Arguments:** as `fit` (no `starts`), plus `shard`; `model` may also be a
     sequence of models of one structure, one start per experiment (their free
-    values; `Fixed` values are the first model's).
+    values; `Fixed` values are the first model's). Each problem is one experiment,
+    at one input level where its current is constant: a model with current laws
+    (a template built on experiments at several levels) then has a slope no problem
+    determines. Build the start from each experiment alone, e.g.
+    `[MODEL_TEMPLATES[name]([e]) for e in experiments]`.
 
     **Returns:** one `FitResult` per experiment, in order; each `history` is that
     problem's own best loss up to its own stop.

@@ -87,7 +87,7 @@ import numpy as np
 
 from .._current_law import LinearLaw
 from .._custom_types import Array, Float, Scalar, ScalarLike, State
-from .._damper import Damper, as_damper
+from .._damper import Damper, as_damper, fitted_range_in
 from .._hysteresis import BoucWen
 from .._metrics import settling_time
 from .._misc import Check, as_float_array, check_concrete, is_concrete
@@ -180,6 +180,16 @@ class SASRig(AbstractSystem):
     state_names: ClassVar[tuple[str, ...]] = ("alpha1", "omega1", "alpha2", "omega2")
 
     def __check_init__(self):
+        # The brake's model, where it holds the range it was fitted on, must be a
+        # rotary device's: a damper fitted in metres and newtons ran silently in the
+        # rig (95 N·m, the body stuck at 8°).
+        fitted = fitted_range_in(self.damper, strict=False)
+        if fitted is not None and not fitted.rotary:
+            raise ValueError(
+                "SASRig: its damper is the rig's rotary brake (angle [rad], torque "
+                "[N·m]), but this model was fitted on a linear device's records (m, "
+                "N): fit a brake model to the brake's records."
+            )
         arrays = [getattr(self, name) for name in (*_POSITIVE, *_NON_NEGATIVE)]
         if is_concrete(*arrays, self.beta, self.g):
             for check in self.constraints():
