@@ -485,6 +485,8 @@ def test_parsimony_picks_the_lowest_median_and_the_simpler_on_a_tie():
     np.testing.assert_allclose(rule.median_nrmse, [0.315, 0.117, 0.115, 0.105])
     assert rule.num_records == 4 and rule.tolerance == 0.002
     assert "shear_thinning_spencer" in rule.reason
+    # The default margin in words: 0.2 % (":.0%" had written "0%").
+    assert "no simpler model is within 0.2 % of it" in rule.reason
     # A tie in the fourth digit (a user's Bouc–Wen data: Spencer 0.0281332, Bouc–Wen
     # 0.0281363) goes to the simpler model (it went to Spencer, whose c1 ran off to
     # 1.9e10: Spencer with c1 -> inf is Bouc–Wen).
@@ -503,7 +505,7 @@ def test_parsimony_picks_the_lowest_median_and_the_simpler_on_a_tie():
         [spencer, shear, bouc_wen],
         tolerance=0.10,
     )
-    assert rule.chosen == "spencer" and "within 10%" in rule.reason
+    assert rule.chosen == "spencer" and "within 10 %" in rule.reason
     with pytest.raises(ValueError, match="tolerance"):
         parsimony(["spencer"], [spencer], tolerance=-0.1)
 

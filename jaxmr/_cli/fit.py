@@ -9,7 +9,6 @@ event of `fit` and `select_model`: stop at the next step with the best model so 
 """
 
 import argparse
-import math
 import os
 import signal
 import sys
@@ -223,21 +222,25 @@ def run(args: argparse.Namespace) -> int:
             result.model, out, report, fitted_range, replacing=out in replacing
         ):
             interrupts.count += 1
-        if _diverged(args.files, result, out):
+        if _diverged(report, out):
             return 1
         return _exit_status(result, interrupts, out)
 
 
-def _diverged(files, result, out: Path) -> bool:
+def _diverged(report: dict, out: Path) -> bool:
     """Say so (and return True) when the fitted model's simulation of an experiment
-    diverged: its state left its bounds or stopped being finite (`FitResult.rmse`
-    is then inf), so its forces are no fit, however finite."""
-    names, at = result.experiment_names, _diverged_times(result)
+    diverged: its state left its bounds or stopped being finite (its RMSE is then
+    not finite: null in the report's `per_file` rows, which pair each experiment
+    with its file), so its forces are no fit, however finite."""
     bad = [
-        f"{path} (experiment {name!r})"
-        + (f" at t = {t:g} s" if math.isfinite(t) else "")
-        for path, name, error, t in zip(files, names, result.rmse, at)
-        if not math.isfinite(error)
+        f"{row['file']} (experiment {row['experiment']!r})"
+        + (
+            f" at t = {row['diverged_at_s']:g} s"
+            if row["diverged_at_s"] is not None
+            else ""
+        )
+        for row in report["per_file"]
+        if row["rmse"] is None
     ]
     if bad:
         print(
@@ -645,10 +648,3 @@ def _fit_report(name, files, experiments, result, elapsed, selection, warnings) 
     report["fit_time_s"] = round(elapsed, 3)
     report["warnings"] = warnings
     return report
-
-
-def _diverged_times(result) -> list[float]:
-    """`FitResult.diverged_at`, NaN for each experiment where it is not known."""
-    if result.diverged_at is None:
-        return [math.nan] * len(result.experiment_names)
-    return [float(t) for t in result.diverged_at]

@@ -164,12 +164,8 @@ class VelocityEstimator(eqx.Module):
         reads 0, `wheel` False); and the relative acceleration's bias, their
         difference."""
         body = a_s if self.body_bias is None else self.body_bias + 0.0 * a_s
-        if not wheel:
-            wheel_start = a_u
-        elif self.wheel_bias is None:
-            wheel_start = a_u
-        else:
-            wheel_start = self.wheel_bias + 0.0 * a_u
+        given = wheel and self.wheel_bias is not None
+        wheel_start = self.wheel_bias + 0.0 * a_u if given else a_u
         return body, wheel_start, body - wheel_start
 
     def init(self, measurement, positions: bool = False) -> EstimatorState:

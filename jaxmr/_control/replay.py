@@ -5,10 +5,10 @@ from collections.abc import Mapping
 
 import equinox as eqx
 import jax
-import jax.numpy as jnp
 import numpy as np
 
 from .._custom_types import Array, PyTree
+from .._misc import to_device
 from .base import AbstractController
 from .observer_based import _NoPlant
 from .sensors import readings
@@ -70,7 +70,9 @@ def replay(
             "replay: `measurements` must be a non-empty dict of readings by name."
         )
     names = tuple(str(n) for n in measurements)
-    columns = [jnp.asarray(np.asarray(v, dtype=float)) for v in measurements.values()]
+    # Stacked on the host and moved once (`to_device`): eager `jnp` conversions and
+    # a `jnp.stack` each compiled per shape, before the replay's own program.
+    columns = [np.asarray(v, dtype=float) for v in measurements.values()]
     shapes = {n: c.shape for n, c in zip(names, columns)}
     if any(c.ndim != 1 for c in columns) or len({c.shape for c in columns}) != 1:
         raise ValueError(
@@ -78,4 +80,4 @@ def replay(
         )
     if columns[0].shape[0] < 1:
         raise ValueError("replay: the readings hold no sample.")
-    return _replay(controller, names, jnp.stack(columns, axis=1))
+    return _replay(controller, names, to_device(np.stack(columns, axis=1)))

@@ -5,6 +5,7 @@ import dataclasses
 from collections.abc import Sequence
 
 from .._control import ObserverBasedController, Sensors
+from .._control.sensors import ESTIMATOR_READS
 from .._control.state_space import POSITIONS
 from .syntax import check_identifier
 
@@ -81,8 +82,7 @@ def plan(controller: ObserverBasedController, measurements) -> Plan:
             "`DamperObserver`."
         )
     if controller.estimator is not None:
-        needed = ("body_acceleration", "damper_displacement")
-        missing = [n for n in needed if n not in inputs]
+        missing = [n for n in ESTIMATOR_READS if n not in inputs]
         if missing:
             raise ValueError(
                 f"export: the VelocityEstimator needs the measurements {missing}; "

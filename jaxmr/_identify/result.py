@@ -236,7 +236,7 @@ class FitResult:
     def outcome(self) -> str:
         """The verdict in words, starting with "converged" exactly when `converged`
         (the one wording: the summary, `score_table`, `select_model`'s log and
-        `jaxmr fit`'s report use it). Progress stalled at the noise floor counts as
+        `jaxmr fit`'s report use it). Progress stalled at a minimum counts as
         converged, so its words are not "stalled". Converged means at a minimum, the
         one the start led to: other starts may find a lower one, and it need not fit:
         where the model explains little of an experiment's force, `poor_fit` follows
@@ -696,8 +696,8 @@ def _long_run(r, J, prewhiten: bool, kernel: bool):
     """Σ_t Σ_s J_tᵀ cov(r_t, r_s) J_s estimated from one experiment's residual `r`
     and Jacobian rows `J` (time order).
 
-    Prewhitened (Andrews & Monahan 1992): the residual's AR(1) coefficient ρ (lag-1
-    autocorrelation, at most `RHO_MAX` in size) splits r = A⁻¹u into innovations u
+    Prewhitened (Andrews & Monahan 1992): the residual's AR(1) coefficient ρ
+    (`ar_coefficient`, at most `RHO_MAX` in size) splits r = A⁻¹u into innovations u
     (u_0 = √(1−ρ²) r_0, u_t = r_t − ρ r_{t−1}), and Jᵀ cov(r) J = Xᵀ cov(u) X with
     X = A⁻ᵀJ (X_t = J_t + ρ X_{t+1}, X_0 divided by √(1−ρ²)): exact for AR(1) noise
     and no assumption beyond it, since cov(u) is estimated next. `kernel`: cov(u)

@@ -334,7 +334,7 @@ def column_scales(residuals_fn, ys, static, data, chunk, mesh):
     largest = np.max(
         np.stack([np.max(n.reshape(count, -1), axis=1) for n in leaves]), axis=0
     )
-    floor = np.maximum(1e-2 * largest, 1e-300)  # per member, as `_norm_floor`
+    floor = np.maximum(NORM_FLOOR * largest, 1e-300)  # per member, as `_norm_floor`
 
     def scale(n):
         f = floor.reshape((count,) + (1,) * (n.ndim - 1))
@@ -493,12 +493,16 @@ def _column_norms(jac):
     return jax.tree.map(lambda j: jnp.sqrt(jnp.sum(j**2, axis=0)), jac)
 
 
+# The smallest column norm scaled by, as a share of the largest: a variable the data
+# barely see (an effect below the noise) is not magnified more than 100x; unbounded,
+# its huge steps sent such a parameter to zero.
+NORM_FLOOR = 1e-2
+
+
 def _norm_floor(norms) -> float:
-    """The smallest column norm scaled by: a variable the data barely see (an effect
-    below the noise) is not magnified more than 100x; unbounded, its huge steps sent
-    such a parameter to zero."""
+    """The smallest column norm scaled by (`NORM_FLOOR` of the largest)."""
     largest = max(float(np.max(n)) for n in jax.tree.leaves(norms))
-    return max(1e-2 * largest, 1e-300)
+    return max(NORM_FLOOR * largest, 1e-300)
 
 
 def placed_like_data(tree, data):
