@@ -2,7 +2,9 @@
 
 import json
 
+import equinox as eqx
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
@@ -157,15 +159,61 @@ def test_a_mapping_is_told_from_a_model(tmp_path):
         jaxmr.load_model(path)
 
 
+def test_a_tuned_force_feedback_law_round_trips(tmp_path):
+    """A ForceFeedback's network (equinox Linear and MLP layers, which construction
+    builds from sizes and a key) is written with its arrays and read back to the
+    bit, inside an observer-based controller (`save_model` had refused it)."""
+    law = jaxmr.ForceFeedback.mlp(
+        [1.0] * 5, 1.0, width=4, depth=2, key=jax.random.key(3)
+    )
+    # Tuned weights: every layer's arrays away from construction's.
+    law = jax.tree.map(
+        lambda a: (
+            a + 0.01 * jnp.arange(a.size, dtype=a.dtype).reshape(a.shape)
+            if eqx.is_inexact_array(a) and a.ndim > 0
+            else a
+        ),
+        law,
+    )
+    controller = jaxmr.ObserverBasedController(law, estimator=jaxmr.VelocityEstimator())
+    path = tmp_path / "controller.json"
+    jaxmr.save_model(controller, path)
+    back = jaxmr.load_model(path)
+    assert jax.tree.structure(back) == jax.tree.structure(controller)
+    arrays = [jax.tree.leaves(eqx.filter(m, eqx.is_array)) for m in (controller, back)]
+    assert len(arrays[0]) == len(arrays[1]) == 14  # the estimator's and 5 layers'
+    for a, b in zip(*arrays):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    phi = jnp.linspace(-2.0, 2.0, 5)
+    assert float(back.law.network(phi)) == float(law.network(phi))
+    assert float(law.network(phi)) != 0.0  # the check sees the tuned weights
+
+    linear = jaxmr.ForceFeedback.linear([1.0] * 5, 1.0)
+    jaxmr.save_model(linear, tmp_path / "linear.json")
+    assert jaxmr.load_model(tmp_path / "linear.json").network.weight.shape == (1, 5)
+
+
 def test_a_field_that_cannot_be_saved_is_named_by_its_path(tmp_path):
-    """A ForceFeedback's network holds layers as a tuple, which a model file does not
-    store: the error names the path of fields down to it and what to do instead (it
-    had said only "cannot write a value of type tuple"), and no file is left."""
+    """A network with an activation a file cannot name: the error names the path of
+    fields down to it and what to do instead, and no file is left."""
     law = jaxmr.ForceFeedback.mlp([1.0] * 5, 1.0, width=4, depth=1)
+    law = eqx.tree_at(lambda m: m.network.mlp.activation, law, lambda x: x**3)
     controller = jaxmr.ObserverBasedController(law, estimator=jaxmr.VelocityEstimator())
     path = tmp_path / "controller.json"
     with pytest.raises(
-        TypeError, match=r"cannot write law\.network\.mlp\.layers \(a tuple\)"
+        TypeError, match=r"cannot write law\.network\.mlp\.activation \(an activation"
     ):
         jaxmr.save_model(controller, path)
     assert not path.exists()
+
+
+def test_a_layer_whose_arrays_do_not_fit_its_sizes_is_refused(tmp_path):
+    path = tmp_path / "law.json"
+    jaxmr.save_model(jaxmr.ForceFeedback.linear([1.0] * 5, 1.0), path)
+    data = json.loads(path.read_text())
+    data["model"]["fields"]["network"]["weight"] = [[1.0, 2.0]]
+    path.write_text(json.dumps(data))
+    with pytest.raises(
+        ValueError, match=r"network\.weight: expected an array of shape \(1, 5\)"
+    ):
+        jaxmr.load_model(path)

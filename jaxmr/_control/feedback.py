@@ -36,7 +36,7 @@ def _zero_linear(features: int, dtype) -> eqx.nn.Linear:
     return eqx.tree_at(lambda m: m.weight, linear, jnp.zeros_like(linear.weight))
 
 
-class _LinearAndMLP(eqx.Module):
+class LinearAndMLP(eqx.Module):
     # A linear law plus a nonlinear correction: never worse than the linear law it
     # contains, and tuned from zero the gradient moves the linear part first.
     linear: eqx.nn.Linear
@@ -159,7 +159,7 @@ class ForceFeedback(AbstractController):
             net,
             (jnp.zeros_like(last.weight), jnp.zeros_like(last.bias)),
         )
-        net = _LinearAndMLP(_zero_linear(len(features), dtype), net)
+        net = LinearAndMLP(_zero_linear(len(features), dtype), net)
         return cls(
             network=net,
             scales=scales,
@@ -187,7 +187,7 @@ class ForceFeedback(AbstractController):
             )
         if isinstance(network, eqx.nn.Linear) and not network.use_bias:
             return [network.weight]
-        if isinstance(network, _LinearAndMLP):
+        if isinstance(network, LinearAndMLP):
             return [network.linear.weight] + [
                 w for layer in network.mlp.layers for w in (layer.weight, layer.bias)
             ]

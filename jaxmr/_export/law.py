@@ -17,7 +17,7 @@ from .._control import (
     OnOffSkyhook,
     Skyhook,
 )
-from .._control.feedback import _LinearAndMLP
+from .._control.feedback import LinearAndMLP
 from .._control.state_space import QUARTER_CAR_STATE
 from .._damper import Damper
 from .damper import unsupported
@@ -125,7 +125,7 @@ def _network_c(network, features: int) -> str:
     `linear(phi) (+ mlp(phi))`, each layer `weight @ x + bias`, tanh between."""
     if isinstance(network, eqx.nn.Linear):
         linear, mlp = network, None
-    elif isinstance(network, _LinearAndMLP):
+    elif isinstance(network, LinearAndMLP):
         linear, mlp = network.linear, network.mlp
     else:
         raise unsupported(

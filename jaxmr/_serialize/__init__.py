@@ -5,9 +5,10 @@
 
 Every jaxmr model, law, dynamics, constraint wrapper and `Damper` can be written, and
 so can a machine, a controller (an `ObserverBasedController` with its estimator,
-observer and `Sampling`; not a `ForceFeedback`, whose network is an equinox layer) and
-a `Sensors` set, whose mapping is written `{"dict": {name: ...}}`; a user's own class
-can be read back when it is passed in `classes`.
+observer and `Sampling`; a `ForceFeedback` with its network, whose equinox layers are
+written by `layers`) and a `Sensors` set, whose mapping is written
+`{"dict": {name: ...}}`; a user's own class can be read back when it is passed in
+`classes`.
 """
 
 import dataclasses
@@ -20,7 +21,7 @@ import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
-from . import (
+from .. import (
     _channel,
     _control,
     _current_dynamics,
@@ -34,11 +35,13 @@ from . import (
     _signal,
     _systems,
 )
-from ._damper import fitted_range_in, with_fitted_range
-from ._fitted_range import FittedRange
-from ._hysteresis import AbstractHysteresis
-from ._misc import default_float
-from ._version import __version__
+from .._control import feedback
+from .._damper import fitted_range_in, with_fitted_range
+from .._fitted_range import FittedRange
+from .._hysteresis import AbstractHysteresis
+from .._misc import default_float
+from .._version import __version__
+from .layers import decode_layer, encode_layer, is_layer, is_layer_entry
 
 # The modules whose public classes a file may name: what a model is made of
 # (hysteresis models, current laws and dynamics, constraint wrappers, the damper, the
@@ -47,6 +50,7 @@ from ._version import __version__
 _MODULES = (
     _channel,
     _control,
+    feedback,  # the map of `ForceFeedback.mlp` (`LinearAndMLP`)
     _current_dynamics,
     _current_law,
     _damper,
@@ -86,15 +90,17 @@ class _Unwritable(TypeError):
     def __init__(self, path: str, what: str):
         super().__init__(
             f"cannot write {path} ({what}) to a model file: `save_model` stores jaxmr "
-            "models, their numbers and arrays, not a field of another kind (a "
-            "ForceFeedback's neural network, a user's object): keep such a model in "
-            "Python (e.g. equinox.tree_serialise_leaves), and export a controller "
-            "from there (jaxmr.export_c)."
+            "models, their numbers and arrays, and equinox's Linear and MLP layers, "
+            "not a field of another kind (a user's object or network): keep such a "
+            "model in Python (e.g. equinox.tree_serialise_leaves), and export a "
+            "controller from there (jaxmr.export_c)."
         )
         self.path, self.what = path, what
 
 
 def _encode(value, path: str = "the model"):
+    if is_layer(value):
+        return encode_layer(value, path, _Unwritable)
     if isinstance(value, eqx.Module):
         fields = {}
         for field in dataclasses.fields(value):
@@ -111,6 +117,10 @@ def _encode(value, path: str = "the model"):
         return {"dict": {k: _encode(v, f"{path}[{k!r}]") for k, v in value.items()}}
     if value is None or isinstance(value, (bool, int, float, str)):
         return value
+    if isinstance(value, tuple) and value and all(isinstance(v, str) for v in value):
+        return list(
+            value
+        )  # names (a law's `features`): a static field, read as a tuple
     array = np.asarray(value)
     if array.dtype.kind in "fiu":
         return array.tolist()
@@ -121,6 +131,8 @@ def _decode(value, classes, where="model", static=False):
     """The value `_encode` wrote. `static`: the value of a static field, which keeps
     JSON's Python numbers (a `Sampling`'s `dt` sets the compiled loop's step, and an
     array there is refused) and makes its lists tuples (hashable)."""
+    if is_layer_entry(value):
+        return decode_layer(value, where)
     if isinstance(value, dict) and "type" in value and "fields" in value:
         name = value["type"]
         if not isinstance(name, str) or name not in classes:
