@@ -20,7 +20,7 @@ from ._integrate import FixedStep
 from ._metrics import dissipated_energy
 from ._misc import Check, guarded, is_concrete, rk4_step, warn_if_float32
 from ._road import RandomRoad
-from ._signal import AbstractSignal, as_signal
+from ._signal import AbstractSignal, Sampled, as_signal
 from ._solution import RESULTS
 from ._systems.base import AbstractSystem
 from ._systems.sas_rig import SASRig
@@ -95,7 +95,10 @@ class SystemSolution(eqx.Module):
     - `command`: the controller's output at each sample [A].
     - `applied`: the command acting on the damper over $[t_k, t_{k+1})$ [A] (the
       command `sampling.delay` samples earlier, held).
-    - `current`: the effective current the damper's model saw at $t_k$ [A].
+    - `current`: the effective current the damper's model saw at $t_k$ [A], just
+      after the command applied at $t_k$ (the outputs, `damper_force` among them,
+      are read just before it: `outputs["damper_force"][k]` is the force at
+      `current[k - 1]`).
     - `states`: system state then damper state at each sample.
     - `final_state`: the state at the end, `duration` [s].
     - `result`: a `jaxmr.RESULTS` code.
@@ -155,6 +158,14 @@ def _check_arguments(system, excitation, duration, sampling: Sampling):
         raise ValueError(
             f"`duration` must be a number of seconds >= the sample time "
             f"sampling.dt = {dt}, got {duration!r}."
+        )
+    samples = duration / dt
+    if abs(samples - round(samples)) > 1e-6 * max(1.0, samples):
+        # The loop runs whole samples: 0.0105 s at 1 ms had run 0.010 s silently.
+        raise ValueError(
+            f"`duration` = {duration!r} s is not a whole number of samples of "
+            f"sampling.dt = {dt} s ({samples:.6g}): give a multiple of it, e.g. "
+            f"{round(samples) * dt:.6g} s."
         )
     return as_signal(excitation, "excitation")
 
@@ -217,6 +228,22 @@ def _excitation_checks(excitation, dt, duration):
     # sample time, the simulation would interpolate away the content it runs at; and
     # past its end it would hold its last value. Its grid is static, so these are
     # plain errors at trace time.
+    if isinstance(excitation, Sampled) and is_concrete(excitation.times):
+        # A measured profile (a `Sampled` road) held its last height past its end
+        # without a word, where a `RandomRoad` of the same length is refused.
+        times = np.asarray(excitation.times)
+        # Within a sample of the end: a record of N samples spans (N - 1) intervals,
+        # and a run of N samples ends one interval later.
+        spacing = float(times[-1] - times[-2]) if times.size > 1 else 0.0
+        end = float(times[-1])
+        if end < duration - max(dt, spacing) - 1e-9:
+            raise ValueError(
+                f"the excitation (a Sampled signal) ends at {end:g} s, before the "
+                f"simulation's duration = {duration} s: past its end it would hold "
+                "its last value. Give samples up to the duration, or a shorter "
+                "duration."
+            )
+        return
     if not isinstance(excitation, RandomRoad):
         return
     if excitation.dt > dt * (1 + 1e-9):
@@ -834,7 +861,15 @@ _NO_DEVICE = (
 
 def dissipated_work(solution: SystemSolution) -> Scalar:
     """$\\int F v\\,dt$ [J]: the work the damper absorbed over the run (trapezoid,
-    `jaxmr.metrics.dissipated_energy` of the solution's samples)."""
+    `jaxmr.metrics.dissipated_energy` of the solution's samples) of a closed-loop
+    run (`simulate_system`)."""
+    if not isinstance(solution, SystemSolution):
+        raise TypeError(
+            "dissipated_work takes a closed-loop run (`simulate_system`), got a "
+            f"{type(solution).__name__}; for a damper under prescribed motion use "
+            "jaxmr.metrics.energy_per_cycle or dissipated_energy(sol.ts, sol.force, "
+            "sol.velocity)."
+        )
     outputs = solution.outputs
     return dissipated_energy(
         solution.ts, outputs["damper_force"], outputs["damper_velocity"]

@@ -7,14 +7,14 @@ unit of the parameter it stands for.
 """
 
 import abc
-from typing import TYPE_CHECKING, Any, TypeAlias
+from typing import TYPE_CHECKING, Any, ClassVar, TypeAlias
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 
 from ._custom_types import Array, Float, Scalar, ScalarLike
-from ._misc import as_float_array, check_concrete
+from ._misc import as_float_array, check_concrete, check_finite_fields
 
 
 def _plain(x):
@@ -39,6 +39,9 @@ class AbstractCurrentLaw(eqx.Module):
     def __call__(self, current: Scalar) -> Scalar:
         """The parameter's value at `current`."""
 
+    def __check_init__(self):
+        check_finite_fields(self)
+
     def range(self) -> tuple[Array, Array] | None:
         """The currents this law is valid for, or `None` when it is valid for any."""
         return None
@@ -54,7 +57,11 @@ else:
 
 class ConstantLaw(AbstractCurrentLaw):
     r"""$p(i) = p_0$: a parameter that does not depend on current (useful when fitting
-    switches a parameter between shared and current-dependent)."""
+    switches a parameter between shared and current-dependent).
+
+    **Arguments:** `value`, $p_0$ in the parameter's own unit (e.g. N·s/m for a
+    viscous coefficient).
+    """
 
     value: Float[Array, ""] = eqx.field(converter=as_parameter)
 
@@ -133,6 +140,9 @@ class TableLaw(AbstractCurrentLaw):
 
     currents: Float[Array, " table"] = eqx.field(converter=as_float_array)
     values: Float[Array, " table"] = eqx.field(converter=as_parameter)
+    # A fit varies the values at the tested currents, never the currents
+    # (`jaxmr._parameter.fixed_fields`).
+    fit_fixed: ClassVar[tuple[str, ...]] = ("currents",)
 
     def __check_init__(self):
         values = _plain(self.values)

@@ -22,6 +22,7 @@ import diffrax as dfx
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 import optimistix as optx
 
 from ._custom_types import Array, Float, Int
@@ -59,6 +60,27 @@ class AbstractAdaptiveIntegrator(AbstractIntegrator):
     atol: eqx.AbstractVar[float]
     max_steps: eqx.AbstractVar[int]
     adjoint: eqx.AbstractVar[dfx.AbstractAdjoint]
+
+    def __check_init__(self):
+        # Here rather than in the solve: rtol = -1 was told it "cannot be met in
+        # float64 ... call jax_enable_x64", and max_steps = 0 failed in equinox's
+        # checkpointing ("at least one checkpoint").
+        name = type(self).__name__
+        for field, low in (("rtol", "> 0"), ("atol", ">= 0")):
+            value = getattr(self, field)
+            if not is_concrete(value):
+                continue
+            ok = np.ndim(value) == 0 and np.isfinite(value)
+            ok = ok and (float(value) > 0 if field == "rtol" else float(value) >= 0)
+            if not ok:
+                raise ValueError(
+                    f"{name}: `{field}` must be a number {low}, got {value!r}."
+                )
+        if not isinstance(self.max_steps, int) or self.max_steps < 1:
+            raise ValueError(
+                f"{name}: `max_steps` must be a positive integer, got "
+                f"{self.max_steps!r}."
+            )
 
     def integrate(self, vector_field, y0, ts, args, *, jump_ts=None):
         _check_rtol_resolvable(self, ts.dtype)

@@ -1,5 +1,6 @@
 """Small helpers used by several models: numerics, and validity checks as data."""
 
+import dataclasses
 import warnings
 from collections.abc import Callable
 
@@ -171,6 +172,23 @@ def check_concrete(condition_ok, message: str, *values) -> None:
         np.all(np.asarray(condition_ok))
     ):
         raise ValueError(message)
+
+
+def check_finite_fields(module: eqx.Module) -> None:
+    """`ValueError` naming the first field of `module` whose concrete numbers are not
+    all finite (traced ones are left to the runtime checks). A NaN amplitude or law
+    coefficient was accepted when built and surfaced only inside a simulation, whose
+    error pointed at the first compilation's line."""
+    for field in dataclasses.fields(module):
+        value = getattr(module, field.name, None)
+        leaves = [x for x in jax.tree.leaves(value) if eqx.is_array(x)]
+        if not leaves or not is_concrete(*leaves):
+            continue
+        if not all(np.all(np.isfinite(np.asarray(x))) for x in leaves):
+            raise ValueError(
+                f"{type(module).__name__}: `{field.name}` must be finite, got "
+                f"{np.asarray(leaves[0]) if len(leaves) == 1 else value}."
+            )
 
 
 def rk4_stages(rates: Callable, y, h, start, middle, end):

@@ -146,10 +146,34 @@ def fixed_modes(tree):
     return jax.tree.map(fix, tree, is_leaf=has_modes)
 
 
+def fixed_fields(tree):
+    """`tree` with every field a module names in its class attribute `fit_fixed`
+    wrapped in `Fixed`: arrays that place the parameters rather than being ones (a
+    `TableLaw`'s tested currents). Free, a fit moved a table's currents out of
+    order and off the data."""
+
+    def has_fixed(x) -> bool:
+        return isinstance(x, eqx.Module) and bool(getattr(type(x), "fit_fixed", ()))
+
+    def fix(module):
+        if not has_fixed(module):
+            return module
+        for name in type(module).fit_fixed:
+            value = getattr(module, name)
+            if eqx.is_array(value):
+                module = eqx.tree_at(
+                    lambda m, name=name: getattr(m, name), module, Fixed(value)
+                )
+        return module
+
+    return jax.tree.map(fix, tree, is_leaf=has_fixed)
+
+
 def fitted_form(model):
-    """A model as a fit takes it: its plain floats as arrays (`numbers_as_arrays`)
-    and its parameters at a mode `Fixed` (`fixed_modes`)."""
-    return fixed_modes(numbers_as_arrays(model))
+    """A model as a fit takes it: its plain floats as arrays (`numbers_as_arrays`),
+    its parameters at a mode `Fixed` (`fixed_modes`) and the arrays that only place
+    parameters too (`fixed_fields`)."""
+    return fixed_fields(fixed_modes(numbers_as_arrays(model)))
 
 
 def free_filter(tree):

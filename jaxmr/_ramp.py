@@ -15,7 +15,7 @@ class Ramp(AbstractSignal):
     **Arguments:**
 
     - `rate`: $r$, in the signal's unit per second.
-    - `offset`: $s_0$, the value at $t = 0$ (default 0).
+    - `offset`: $s_0$, the value at $t = 0$, in the signal's unit (default 0).
     """
 
     rate: Float[Array, ""] = eqx.field(converter=as_float_array)

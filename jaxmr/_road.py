@@ -640,7 +640,11 @@ def road_psd(
     """
     z = np.asarray(z, dtype=float)
     z = z.reshape(-1, z.shape[-1])
-    # `ScalarLike` admits complex arrays, which `float` refuses at run time.
+    for name, value in (("dt", dt), ("speed", speed)):
+        # `ScalarLike` admits complex arrays, which `float` refuses at run time.
+        if not (np.ndim(value) == 0 and np.isfinite(value) and float(value) > 0):  # pyright: ignore[reportArgumentType]
+            unit = "s" if name == "dt" else "m/s"
+            raise ValueError(f"road_psd: `{name}` must be > 0 [{unit}], got {value!r}.")
     dx = float(speed) * float(dt)  # pyright: ignore[reportArgumentType]
     n_total = z.shape[-1]
     if segment_length is None:

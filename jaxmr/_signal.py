@@ -14,7 +14,13 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._custom_types import Array, Float, Scalar
-from ._misc import Check, as_float_array, check_concrete, is_concrete
+from ._misc import (
+    Check,
+    as_float_array,
+    check_concrete,
+    check_finite_fields,
+    is_concrete,
+)
 
 TWO_PI = 2 * jnp.pi
 
@@ -40,6 +46,11 @@ class AbstractSignal(eqx.Module):
         a sampled signal's knots), or `None` for a smooth signal. An adaptive
         integrator steps to them exactly instead of finding each by rejected steps."""
         return None
+
+    def __check_init__(self):
+        # After a subclass's own checks (equinox runs them first), which name bad
+        # samples more precisely.
+        check_finite_fields(self)
 
     def checks(self) -> list[Check]:
         """Runtime validity checks ([`jaxmr.Check`][jaxmr.Check]s); every signal's
@@ -103,7 +114,7 @@ class Sine(AbstractSignal):
     - `amplitude`: $a$, in the signal's unit (m, rad, A, V).
     - `frequency`: $f$ [Hz], > 0.
     - `phase`: $\varphi$ [rad], default 0.
-    - `offset`: $s_0$, default 0 (e.g. a bias current).
+    - `offset`: $s_0$, in the signal's unit, default 0 (e.g. a bias current [A]).
     """
 
     amplitude: Float[Array, ""] = eqx.field(converter=as_float_array)
@@ -139,7 +150,8 @@ class Triangle(AbstractSignal):
     are finite at the peaks; exactly at a peak or trough the derivative is 0, the mean
     of the two one-sided slopes.
 
-    **Arguments:** as `Sine`.
+    **Arguments:** as `Sine`: `amplitude` and `offset` in the signal's unit (m, rad,
+    A, V), `frequency` [Hz] > 0, `phase` [rad].
     """
 
     amplitude: Float[Array, ""] = eqx.field(converter=as_float_array)
@@ -221,7 +233,8 @@ class Chirp(AbstractSignal):
 
     **Arguments:**
 
-    - `amplitude`: $a$; `f0`, `f1`: start and end frequency [Hz]; `duration`: $T$ [s].
+    - `amplitude`: $a$, in the signal's unit (m, rad, A, V); `f0`, `f1`: start and end
+      frequency [Hz]; `duration`: $T$ [s].
     """
 
     amplitude: Float[Array, ""] = eqx.field(converter=as_float_array)
@@ -258,7 +271,8 @@ class Steps(AbstractSignal):
 
     **Arguments:**
 
-    - `times`: switching times [s], strictly increasing; `values`: one per time.
+    - `times`: switching times [s], strictly increasing; `values`: one per time, in
+      the signal's unit (m, rad, A, V).
     """
 
     times: Float[Array, " steps"] = eqx.field(converter=as_float_array)

@@ -511,6 +511,21 @@ def simulate(
 # Sweeps
 
 
+def _kind(module) -> str:
+    """A module's type for a message; a damper's with its model's (every device of a
+    sweep is wrapped in a `Damper` before it is stacked)."""
+    inner = getattr(module, "hysteresis", None)
+    if isinstance(module, Damper) and inner is not None:
+        return f"{type(inner).__name__} (in a Damper)"
+    return type(module).__name__
+
+
+def _number_as_array(x):
+    if isinstance(x, (int, float)) and not isinstance(x, bool):
+        return as_float_array(x)
+    return x
+
+
 def _stack(items, what: str):
     """A batched module from a sequence of modules of the same structure."""
     items = list(items)
@@ -519,10 +534,17 @@ def _stack(items, what: str):
     arrays = [eqx.filter(m, eqx.is_array) for m in items]
     structures = {jax.tree.structure(a) for a in arrays}
     if len(structures) != 1:
+        # A number set by `eqx.tree_at(..., 300.0)` is a Python float, not an array:
+        # as an array it stacks with the other members' (only done here, off the
+        # common path: a sweep's members are many).
+        items = [jax.tree.map(_number_as_array, m) for m in items]
+        arrays = [eqx.filter(m, eqx.is_array) for m in items]
+        structures = {jax.tree.structure(a) for a in arrays}
+    if len(structures) != 1:
         raise ValueError(
             f"every element of `{what}` must be of the same type with the same "
             "structure (e.g. all Sine, or all BoucWen with the same parameters given as "
-            f"laws); got {sorted({type(m).__name__ for m in items})}."
+            f"laws); got {sorted({_kind(m) for m in items})}."
         )
     static = eqx.filter(items[0], eqx.is_array, inverse=True)
 

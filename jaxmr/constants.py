@@ -1,7 +1,9 @@
 """Constants: published data that jaxmr's presets are built from, and the names of the
 measurements a machine reports.
 
-- `MEASUREMENT_NAMES`: what `simulate_system` returns by name (`sol["tyre_force"]`).
+- `MEASUREMENT_NAMES`: what every machine's `simulate_system` run returns by name
+  (`sol["damper_force"]`); a machine adds its own (a quarter car's
+  `sol["tyre_force"]`).
 - `AISI_12L14_MAJOR_LOOP`: the steel's major-loop data, from which
   `jaxmr.aisi_12l14()` derives Hodgdon's constants.
 - `UTFSM_SPENCER_PUBLISHED`: the UTFSM damper's published Spencer parameters, in the

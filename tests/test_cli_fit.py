@@ -915,7 +915,7 @@ def test_outcome_words_follow_converged(dahl_fit):
     assert stopped.outcome.startswith("interrupted at step 3")
     for result in (stalled, unidentified, budget, stopped):
         assert result.outcome.startswith("converged") == result.converged
-        assert str(result).startswith(f"fit: {result.outcome} after ")
+        assert str(result).startswith(f"fit: {result.outcome} (")
     # The candidates as `compare_models` ranks them.
     nan = np.full(1, np.nan)
     scores = [
@@ -997,7 +997,7 @@ def test_auto_is_never_worse_than_its_template_fitted_alone(auto, fitted):
     assert selection["refit_time_s"] > 0 and selection["template_time_s"] > 0
     # One verdict: the summary line, the report and the ranking's words agree.
     assert auto_report["outcome"].startswith("converged") == auto_report["converged"]
-    assert f"fit: {auto_report['outcome']} after " in auto[2]
+    assert f"fit: {auto_report['outcome']} (" in auto[2]
 
 
 def test_auto_prints_and_records_each_candidates_stages(auto):
@@ -1028,7 +1028,7 @@ def test_fit_summary_agrees_with_the_report(fitted):
     _, out, stdout = fitted
     report = json.loads(out.read_text())["report"]
     (line,) = [x for x in stdout.splitlines() if x.startswith("fit: ")]
-    assert line.startswith(f"fit: {report['outcome']} after ")
+    assert line.startswith(f"fit: {report['outcome']} (")
     assert line.startswith("fit: converged") == report["converged"]
 
 

@@ -149,10 +149,20 @@ def test_nan_in_sampled_signal_under_jit(argument):
 
 
 def test_nan_constant_current():
+    # Refused when built from a number; built under jit from a traced NaN, the
+    # simulation's runtime check names it.
+    with pytest.raises(ValueError, match=r"Constant: `value` must be finite"):
+        jaxmr.Constant(jnp.nan)
     with pytest.raises(
         eqx.EquinoxRuntimeError, match=r"`current`: Constant: its data contain NaN"
     ):
-        traced_force(bouc_wen(), MOTION, jaxmr.Constant(jnp.nan), TS)
+        eqx.filter_jit(
+            lambda c: (
+                jaxmr.simulate(
+                    bouc_wen(), MOTION, jaxmr.Constant(c), TS, integrator=FIXED
+                ).force
+            )
+        )(jnp.asarray(jnp.nan))
 
 
 # ---------------------------------------------------------------------------------------
@@ -453,9 +463,21 @@ def test_nan_parameter_is_named():
     # A NaN fails every comparison: named as NaN, not as a sign error.
     with pytest.raises(ValueError, match=r"BoucWen: `alpha` is NaN or infinite"):
         bouc_wen(alpha=float("nan"))
-    law = bouc_wen(c0=jaxmr.LinearLaw(float("nan"), 1.0))
+    with pytest.raises(ValueError, match=r"LinearLaw: `a` must be finite"):
+        jaxmr.LinearLaw(float("nan"), 1.0)
+    # A law built under jit from a traced NaN: named by the simulation's check.
     with pytest.raises(eqx.EquinoxRuntimeError, match=r"`c0` is NaN or infinite"):
-        jaxmr.simulate(law, MOTION, 0.5, TS, integrator=FIXED)
+        eqx.filter_jit(
+            lambda a: (
+                jaxmr.simulate(
+                    bouc_wen(c0=jaxmr.LinearLaw(a, 1.0)),
+                    MOTION,
+                    0.5,
+                    TS,
+                    integrator=FIXED,
+                ).force
+            )
+        )(jnp.asarray(jnp.nan))
 
 
 def test_closed_loop_checks_the_laws_over_the_commandable_range():
@@ -644,3 +666,64 @@ def test_scores_models_and_metrics_name_a_wrong_call(tmp_path):
     car = jaxmr.spencer_quarter_car(jaxmr.passenger_car_mr_damper())
     with pytest.raises(ValueError, match="this looks like one road"):
         jaxmr.evaluate(car, jaxmr.Skyhook(2000.0, 2.0), road, 1.0)
+
+
+def test_audit_mistakes_are_named_before_any_simulation():
+    """Mistakes a docs-and-API audit (session 28) found answered by a wrong name, a
+    raw JAX error, a deep equinox failure or a plausible number."""
+    # Two kinds of brake in one sweep: named by their models (not "Damper", the
+    # wrapper every device gets before stacking).
+    with pytest.raises(ValueError, match=r"BoucWen \(in a Damper\).*Dahl \(in a Dam"):
+        jaxmr.sweep(
+            [jaxmr.sas_brake_bouc_wen(), jaxmr.sas_brake_dahl()], MOTION, [0.0], TS
+        )
+    # A NaN in a signal or a law, when it is built (it surfaced inside a simulation
+    # whose traceback showed an earlier call's line).
+    for build, match in (
+        (lambda: jaxmr.Sine(jnp.nan, 1.0), "Sine: `amplitude` must be finite"),
+        (lambda: jaxmr.Constant(jnp.inf), "Constant: `value` must be finite"),
+        (lambda: jaxmr.LinearLaw(jnp.nan, 1.0), "LinearLaw: `a` must be finite"),
+        # An integrator's tolerances and budget (rtol -1 was told to enable x64).
+        (lambda: jaxmr.Adaptive(rtol=-1.0), r"`rtol` must be a number > 0"),
+        (lambda: jaxmr.Adaptive(atol=jnp.nan), r"`atol` must be a number >= 0"),
+        (lambda: jaxmr.Adaptive(max_steps=0), "`max_steps` must be a positive"),
+    ):
+        with pytest.raises(ValueError, match=match):
+            build()
+    assert jaxmr.Adaptive(atol=0.0).atol == 0.0  # a pure relative tolerance is valid
+    # An array for a scalar parameter broadcast into a (samples, 3) force.
+    with pytest.raises(ValueError, match=r"`alpha` must be a number or a current law"):
+        bouc_wen(alpha=jnp.ones(3))
+    # Under vmap each member's parameter is a scalar: a batch of models is built so.
+    assert jax.vmap(lambda a: bouc_wen(alpha=a).alpha)(jnp.ones(3)).shape == (3,)
+    # The metrics: samples that do not match, time running backwards (a negative
+    # energy), a negative sample interval (negative frequencies), a wrong solution.
+    t = jnp.linspace(0.0, 1.0, 20)
+    # (The suite's type checker refuses the shapes first, naming the argument.)
+    with pytest.raises(
+        (ValueError, TypeError), match=r"same number of samples|'force'"
+    ):
+        jaxmr.metrics.dissipated_energy(t[:10], t, t)
+    with pytest.raises(ValueError, match="`t` must be increasing"):
+        jaxmr.metrics.dissipated_energy(t[::-1], t, t)
+    with pytest.raises(ValueError, match=r"`dt` must be > 0 \[s\]"):
+        jaxmr.road_psd(np.ones(1000), -1e-3, 10.0)
+    sol = jaxmr.simulate(bouc_wen(), MOTION, 0.0, TS, integrator=FIXED)
+    with pytest.raises(
+        TypeError, match=rf"comfort takes a closed-loop|{names('solution')}"
+    ):
+        jaxmr.metrics.comfort(sol)  # pyright: ignore[reportArgumentType]
+    with pytest.raises(TypeError, match=names("solution")):
+        jaxmr.metrics.energy_per_cycle({"force": 1.0}, 0.5)  # pyright: ignore[reportArgumentType]
+    # Arrays given for experiments: "has no attribute 't'" before.
+    with pytest.raises(TypeError, match=r"`experiments\[0\]` is a ndarray, which has"):
+        jaxmr.fit(bouc_wen(), [np.zeros((3, 100))])  # pyright: ignore[reportArgumentType]
+
+
+def test_tune_names_parameters_that_select_nothing():
+    car = jaxmr.spencer_quarter_car(jaxmr.passenger_car_mr_damper())
+    roads = jax.vmap(lambda k: jaxmr.iso8608_road("C", 20.0, 1.0, k))(
+        jax.random.split(jax.random.key(0), 2)
+    )
+    with pytest.raises(TypeError, match=names("parameters")):
+        jaxmr.tune(car, jaxmr.Skyhook(2000.0, 2.0), roads, 1.0, parameters=None)  # pyright: ignore[reportArgumentType]

@@ -134,7 +134,7 @@ def test_load_model_on_a_damaged_model(tmp_path, saved_model, choice, replacemen
     (the value was acceptable) or the error names the file; a loaded model is whole:
     a Damper with finite numbers."""
     path = tmp_path / "model.json"
-    jaxmr.save_model(saved_model, path)
+    jaxmr.save_model(saved_model, path, overwrite=True)  # one file for every example
     document = json.loads(path.read_text())
     places = [p for p, _ in _paths(document) if p]
     place = places[choice % len(places)]

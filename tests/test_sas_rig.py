@@ -320,3 +320,14 @@ def test_brake_parameters_identified_from_a_free_decay(rig, decays):
     assert not result.unidentified
     np.testing.assert_allclose(result.values, [1.0, 0.07 * 180 / np.pi], rtol=1e-2)
     assert isinstance(result.model, SASRig)
+
+
+def test_the_rig_brake_is_listed_with_the_presets():
+    """The model gallery lists `sas_rig_brake` among the presets that `PRESETS` maps;
+    it was missing there. Its per-radian reading saturates at the docstring's
+    1.16 (1 + 0.07 i) N·m plus the viscous term, 1.39 N·m at 1.5 A and 1 rad/s."""
+    assert jaxmr.PRESETS["sas_rig_brake"] is jaxmr.sas_rig_brake
+    preset = jaxmr.sas_brake_bouc_wen()
+    ts = jnp.linspace(0.0, 1.0, 101)
+    sol = jaxmr.simulate(preset, jaxmr.Ramp(1.0), 1.5, ts)
+    assert float(sol.force[-1]) == pytest.approx(1.39, abs=0.005)

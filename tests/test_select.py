@@ -358,7 +358,7 @@ def test_select_model_reports_typed_events_in_order():
     outcome = score_table(selection.scores).splitlines()[1]
     assert outcome.endswith(finalist.outcome), outcome
     assert finalist.outcome.startswith("converged") == finalist.result.converged
-    assert str(selection.result).startswith(f"fit: {selection.result.outcome} after")
+    assert str(selection.result).startswith(f"fit: {selection.result.outcome} (")
     # `log` gets the lines it always did, made from the same events.
     screening = ended["dahl", "screening"]
     assert lines[0] == "dahl: screened fit on 2 experiment(s)..."

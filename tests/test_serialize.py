@@ -217,3 +217,14 @@ def test_a_layer_whose_arrays_do_not_fit_its_sizes_is_refused(tmp_path):
         ValueError, match=r"network\.weight: expected an array of shape \(1, 5\)"
     ):
         jaxmr.load_model(path)
+
+
+def test_save_model_never_replaces_a_file_unless_told(tmp_path):
+    path = tmp_path / "model.json"
+    jaxmr.save_model(jaxmr.sas_brake_dahl(), path)
+    before = path.read_text()
+    with pytest.raises(FileExistsError, match="pass overwrite=True"):
+        jaxmr.save_model(jaxmr.sas_brake_bouc_wen(), path)
+    assert path.read_text() == before
+    jaxmr.save_model(jaxmr.sas_brake_bouc_wen(), path, overwrite=True)
+    assert type(jaxmr.load_model(path)).__name__ == "BoucWen"

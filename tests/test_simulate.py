@@ -231,3 +231,17 @@ def test_solution_is_a_pytree_of_arrays():
     sol = jaxmr.simulate(jaxmr.sas_brake_dahl(), MOTION, 0.0, TS)
     leaves = eqx.filter(sol, eqx.is_array)
     assert all(leaf.shape[0] == TS.shape[0] for leaf in [leaves.force, leaves.states])
+
+
+def test_a_sweep_of_devices_edited_with_tree_at():
+    """`eqx.tree_at(..., 300.0)`, the edit the docs show, leaves a Python float where
+    the other device holds an array: the sweep stacks them (it had refused them as
+    "not of the same type ... got ['Damper']") and each run is its own simulation."""
+    damper = jaxmr.passenger_car_mr_damper()
+    edited = eqx.tree_at(lambda m: m.hysteresis.beta, damper, 300.0)
+    motion, ts = jaxmr.Sine(0.01, 2.0), jnp.linspace(0.0, 0.5, 51)
+    sol = jaxmr.sweep([damper, edited], motion, [0.5], ts, integrator=FIXED)
+    for k, device in enumerate((damper, edited)):
+        alone = jaxmr.simulate(device, motion, 0.5, ts, integrator=FIXED)
+        np.testing.assert_allclose(sol.force[k, 0], alone.force, rtol=1e-12, atol=1e-9)
+    assert not np.allclose(sol.force[0], sol.force[1])  # the edit took effect

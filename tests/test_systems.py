@@ -227,6 +227,23 @@ def test_a_road_too_coarse_or_too_short_for_the_simulation_is_an_error():
     short = jaxmr.iso8608_road("C", 20.0, 0.2, key)
     with pytest.raises(Exception, match="ends before"):
         jaxmr.simulate_system(car(), short, 0.0, 0.5)
+    # A duration between samples ran the whole samples before it, silently.
+    with pytest.raises(ValueError, match=r"not a whole number of samples .* 0.01 s"):
+        jaxmr.simulate_system(car(), short, 0.0, 0.0105)
+    # A measured profile as a `Sampled` signal, too short: it held its last height.
+    times = jnp.linspace(0.0, 0.2, 201)
+    profile = jaxmr.Sampled(times, 0.01 * jnp.sin(20 * times))
+    with pytest.raises(ValueError, match=r"ends at 0.2 s, before the simulation's"):
+        jaxmr.simulate_system(car(), profile, 0.0, 0.5)
+    sol = jaxmr.simulate_system(car(), profile, 0.0, 0.2)
+    assert bool(jnp.all(jnp.isfinite(sol.states)))
+    # `dissipated_work` is a closed-loop run's; a prescribed-motion run is named.
+    assert float(jaxmr.metrics.dissipated_work(sol)) >= 0.0
+    plain = jaxmr.simulate(MR, jaxmr.Sine(0.01, 2.0), 0.0, jnp.linspace(0, 0.5, 51))
+    with pytest.raises(
+        TypeError, match="dissipated_work takes a closed-loop run|'solution'"
+    ):
+        jaxmr.metrics.dissipated_work(plain)  # pyright: ignore[reportArgumentType]
 
 
 def test_the_deprecated_loop_keywords_warn_and_give_the_same_run():

@@ -283,6 +283,13 @@ def test_an_offset_fitted_to_about_zero_raises_no_warning():
     # size (about 100-500 N): the case the rule is for.
     assert abs(f0) < f0_std < 0.5, (f0, f0_std)
     assert result.poorly_determined == () and result.unidentified == (), str(result)
+    # The table agrees: f0's error is relative to its magnitude (marked), below
+    # 100 %, not the thousands of percent of its value it had shown.
+    assert result.magnitudes is not None and result.magnitudes[k] > abs(f0)
+    (row,) = [r for r in result.table().splitlines() if r.startswith(".f0 ")]
+    rel = float(row.split()[-1].rstrip("*%"))
+    assert row.endswith("*") and rel < 100.0, row
+    assert "small effect, not a poorly determined one" in result.table()
 
 
 def test_a_redundant_group_is_named_once():
@@ -343,3 +350,26 @@ def test_the_prewhitening_coefficient_sees_a_disturbance_beside_white_noise():
     assert ar_coefficient(mixed) == pytest.approx(phi, abs=0.05)
     assert ar_coefficient(ar) == pytest.approx(phi, abs=0.02)
     assert ar_coefficient(white) == lag1(white)  # not clearly correlated: rho1
+
+
+def test_a_table_law_is_fitted_at_its_own_currents():
+    """A `TableLaw`'s values are fitted, its tested currents never: free, a fit
+    moved them out of order and off the data (a user's trial: [0, -0.1, 0.63,
+    0.78] from [0, 0.25, 1, 1.5]), and named them `log(.f_c.currents[0])`."""
+    truth = jaxmr.Bingham(
+        f_c=jaxmr.LinearLaw(100.0, 400.0), c0=800.0, velocity_scale=0.01
+    )
+    tests = three_currents(truth, seed=3)
+    currents = np.array([0.0, 0.5, 1.0])
+    start = jaxmr.Bingham(
+        f_c=jaxmr.TableLaw(currents, jaxmr.Positive(np.array([80.0, 250.0, 600.0]))),
+        c0=jaxmr.Positive(700.0),
+        velocity_scale=jaxmr.Fixed(0.01),
+    )
+    result = jaxmr.fit(start, tests, integrator=POLICY, progress=False)
+    assert not any("currents" in name for name in result.names), result.names
+    np.testing.assert_array_equal(np.asarray(result.model.f_c.currents), currents)
+    np.testing.assert_allclose(
+        np.asarray(result.model.f_c.values), [100.0, 300.0, 500.0], rtol=0.02
+    )
+    assert result.converged, result.reason

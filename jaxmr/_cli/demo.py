@@ -98,7 +98,8 @@ def add_parser(subparsers) -> None:
         "--device",
         choices=tuple(DEVICES),
         default="damper",
-        help="the device: a linear damper (default) or the SAS rotary brake",
+        help="the device: a translational (linear-motion) damper (default) or the SAS "
+        "rotary brake",
     )
     demo.add_argument(
         "--out",

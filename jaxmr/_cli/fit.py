@@ -601,7 +601,11 @@ def _save_model(
     """
 
     def write(path):
-        jaxmr.save_model(model, path, fitted_range=fitted_range, report=report)
+        # `path` is a file this command made for it (the atomic write's temporary
+        # file, or the rescue's `mkstemp`): the user's `--out` is guarded above.
+        jaxmr.save_model(
+            model, path, fitted_range=fitted_range, report=report, overwrite=True
+        )
 
     interrupted = False
     for _ in range(3):

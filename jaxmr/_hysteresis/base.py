@@ -148,6 +148,16 @@ class AbstractHysteresis(eqx.Module):
                 f"{type(self).__name__}: `fitted_range` must be a jaxmr.FittedRange "
                 f"or None, got {type(self.fitted_range).__name__}."
             )
+        for field in dataclasses.fields(self):
+            value = getattr(self, field.name)
+            if eqx.is_array(value) and value.ndim != 0:
+                # An array broadcast silently: BoucWen(alpha=jnp.ones(3), ...) gave a
+                # force of shape (samples, 3). (Under `vmap` each value is a scalar.)
+                raise ValueError(
+                    f"{type(self).__name__}: `{field.name}` must be a number or a "
+                    f"current law, got an array of shape {value.shape}; for several "
+                    "models, give `sweep` a list of them or build them under jax.vmap."
+                )
         # Only parameters given as plain numbers can be checked before a current is known
         # (laws) or before a fit resolves them (constraint wrappers).
         if any(isinstance(p, eqx.Module) for p in _parameters(self)):

@@ -230,7 +230,24 @@ def experiment_list(experiments, name: str = "experiments") -> list:
             f"`{name}` is one experiment; give a list of them, e.g. [experiment] "
             "(`jaxmr.predict` takes one)."
         )
-    return list(experiments)
+    try:
+        items = list(experiments)
+    except TypeError:
+        raise TypeError(
+            f"`{name}` must be a list of experiments (jaxmr.data.Experiment), got a "
+            f"{type(experiments).__name__}."
+        ) from None
+    for k, e in enumerate(items):
+        missing = [a for a in ("t", "x", "v", "current") if not hasattr(e, a)]
+        if missing:
+            # An array or a tuple in the list failed later with "has no attribute 't'".
+            raise TypeError(
+                f"`{name}[{k}]` is a {type(e).__name__}, which has no "
+                f"{', '.join(missing)}: give jaxmr.data.Experiment records (times [s], "
+                "displacement [m], velocity [m/s], input [A or V] and force [N]), e.g. "
+                "from jaxmr.data.read_csv."
+            )
+    return items
 
 
 def _device_words(rotary, drive) -> str:

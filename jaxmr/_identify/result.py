@@ -156,6 +156,10 @@ class FitResult:
     - `poor_fit`: the experiments whose NRMSE exceeds 0.7 (the model explains under
       half of their force's variance), named with what to check, or None.
     - `interrupted`: whether Ctrl-C or the caller's `stop` flag stopped it.
+    - `magnitudes`: what each standard error is relative to in the warnings and
+      the table's `rel` column (same units as `values`): |value|, or the size at
+      which the parameter would move the force by 1 % of the model's largest term
+      where that is larger.
     - `diverged_at`: per experiment, the time [s] (on the experiment's own `t`) from
       which its simulation at the fitted parameters diverged: the model's state left
       its bounds (`state_bounds`, e.g. Dahl's |z| <= 1) or stopped being finite, so
@@ -183,6 +187,7 @@ class FitResult:
     num_steps: int
     stop: StopReason
     diverged_at: np.ndarray | None = None
+    magnitudes: np.ndarray | None = None
 
     @property
     def divergence(self) -> str | None:
@@ -276,10 +281,24 @@ class FitResult:
 
     def table(self) -> str:
         """The parameters with standard errors, as a text table."""
-        rows = [f"{'parameter':<24} {'value':>14} {'std error':>12} {'rel':>8}"]
-        for name, value, se in zip(self.names, self.values, self.std_errors):
-            rel = abs(se / value) if value != 0 else np.inf
-            rows.append(f"{name:<24} {value:>14.6g} {se:>12.3g} {rel:>8.2%}")
+        rows = [f"{'parameter':<24} {'value':>14} {'std error':>12} {'rel':>9}"]
+        magnitudes = np.abs(self.values) if self.magnitudes is None else self.magnitudes
+        floored = False
+        for name, value, se, size in zip(
+            self.names, self.values, self.std_errors, magnitudes
+        ):
+            # Relative to the magnitude the warnings use: a force offset fitted to
+            # ~0 showed "rel 5916660%" beside "well determined".
+            rel = abs(se / size) if size != 0 else np.inf
+            mark = "*" if size != abs(value) else " "
+            floored |= mark == "*"
+            rows.append(f"{name:<24} {value:>14.6g} {se:>12.3g} {rel:>8.2%}{mark}")
+        if floored:
+            rows.append(
+                f"* relative to the size at which it would move the force by "
+                f"{EFFECT_FLOOR:.0%} of the model's largest term (its value is "
+                "smaller: a small effect, not a poorly determined one)"
+            )
         return "\n".join(rows)
 
     def sample(self, n: int, key: jax.Array) -> eqx.Module:
@@ -356,7 +375,9 @@ class FitResult:
 
     def __str__(self):
         lines = [
-            f"fit: {self.outcome} after {self.num_steps} steps, loss {self.loss:.6g}",
+            # In parentheses: the outcome may end in a sentence of advice, which
+            # "after 5 steps" had continued ("... is not noise after 5 steps").
+            f"fit: {self.outcome} ({self.num_steps} steps, loss {self.loss:.6g})",
             self.table(),
             "NRMSE per experiment: "
             + ", ".join(
@@ -895,6 +916,7 @@ def assemble(
         num_steps=outcome.steps,
         stop=stop,
         diverged_at=None if times is None else _diverged_at(simulated, times),
+        magnitudes=np.asarray(magnitude, float),
     )
 
 

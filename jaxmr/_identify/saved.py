@@ -129,8 +129,8 @@ def fit_report(
       model's class).
 
     **Returns:** a dict: the template, the device and units (`force_unit`, `input`),
-    the parameters with standard errors and their covariance (null where not
-    finite), one row per experiment (`per_file`: file, its SHA-256, the numbers'
+    the parameters with standard errors, the magnitude each is relative to in the
+    warnings (`FitResult.magnitudes`) and their covariance (null where not finite), one row per experiment (`per_file`: file, its SHA-256, the numbers'
     SHA-256, experiment name, RMSE [force unit], NRMSE, where its simulation
     diverged [s]), the verdict (`reason`, `stop`, `outcome`, `converged`,
     `num_steps`, `loss`, `unidentified`, `poorly_determined`, `poor_fit`,
@@ -150,9 +150,17 @@ def fit_report(
         "force_unit": force_unit,
         "input": f"{experiments[0].drive} [{input_unit}]",
         "files": paths,
+        # `magnitude`: what the warnings take each error relative to (FitResult).
         "parameters": [
-            {"name": n, "value": _number(v), "std_error": _number(se)}
-            for n, v, se in zip(fitted.names, fitted.values, fitted.std_errors)
+            {"name": n, "value": _number(v), "std_error": _number(se), "magnitude": m}
+            for n, v, se, m in zip(
+                fitted.names,
+                fitted.values,
+                fitted.std_errors,
+                [None] * len(fitted.names)
+                if fitted.magnitudes is None
+                else [_number(m) for m in fitted.magnitudes],
+            )
         ],
         # The parameters' covariance (in the product of their units; null where not
         # finite): `jaxmr predict` and `jaxmr report` draw the prediction band from it.
@@ -231,4 +239,10 @@ def save_fit(
     fitted = result.result if isinstance(result, Selection) else result
     fitted_on, _ = _fitted_rows(fitted, experiments, None)
     fitted_range = FittedRange.from_experiments(fitted_on)
-    save_model(fitted.model, path, fitted_range=fitted_range, report=report)
+    save_model(
+        fitted.model,
+        path,
+        fitted_range=fitted_range,
+        report=report,
+        overwrite=overwrite,
+    )

@@ -258,10 +258,18 @@ def model_from_dict(data: dict, classes: dict[str, type] | None = None) -> eqx.M
 
 
 def save_model(
-    model: eqx.Module, path, *, fitted_range: FittedRange | None = None, **extra
+    model: eqx.Module,
+    path,
+    *,
+    fitted_range: FittedRange | None = None,
+    overwrite: bool = False,
+    **extra,
 ) -> None:
     """Write `model` to a JSON file (with its type), plus any JSON-able `extra`
     entries (e.g. the fit report).
+
+    `overwrite`: write over an existing file (default False: `FileExistsError`, as
+    `save_fit`, `export_c` and the command line refuse to replace a file).
 
     `fitted_range`: the displacements [m], velocities [m/s] and inputs [A or V] the
     model was fitted on (`FittedRange.from_experiments`), written as the file's
@@ -294,6 +302,10 @@ def save_model(
     if fitted_range is None:
         fitted_range = fitted_range_in(model)
     data = model_to_dict(model)
+    if Path(path).exists() and not overwrite:
+        raise FileExistsError(
+            f"save_model: {str(path)!r} exists; pass overwrite=True to replace it."
+        )
     data.update(extra)
     if fitted_range is not None:
         data["fitted_range"] = fitted_range.to_dict()

@@ -91,7 +91,7 @@ from .._damper import Damper, as_damper, fitted_range_in
 from .._hysteresis import BoucWen
 from .._metrics import settling_time
 from .._misc import Check, as_float_array, check_concrete, is_concrete
-from .._presets import sas_brake_bouc_wen
+from .._presets import PRESETS, sas_brake_bouc_wen
 from .base import AbstractSystem
 
 GRAVITY = 9.81  # m/s²
@@ -525,8 +525,10 @@ def sas_rig_brake() -> BoucWen:
     degree, $C(i) = (0.0015 + 0.07 i)$ N·m·s/deg $= (0.0859 + 4.01 i)$ N·m·s/rad.
 
     Why: the thesis works in degrees (its torque–velocity loops are against deg/s).
-    Read per radian (the preset) the brake gives $1.16 + (0.0015 + 0.07 i)\dot\theta$
-    N·m, at most 1.26 N·m at 1.5 A and 1 rad/s, where the RD-2087-01's datasheet
+    Read per radian (the preset) the brake gives
+    $1.16\,(1 + 0.07 i) + (0.0015 + 0.07 i)\dot\theta$ N·m once $z$ saturates (at
+    $z_0 = (\delta/(\beta+\gamma))^{1/n} = 1.16$), at most 1.39 N·m at 1.5 A and
+    1 rad/s, where the RD-2087-01's datasheet
     promises ≈ 4 N·m at 1.5 A; and between 0 and 0.2 A its torque changes by 1.4 %,
     which cannot make any plausible rig settle twice as fast at 0.2 A as at 0 A, as
     the source observes. Read per degree it gives $1.16 + 0.0859\dot\theta$ N·m at 0 A
@@ -544,6 +546,11 @@ def sas_rig_brake() -> BoucWen:
         sas_brake_bouc_wen(),
         LinearLaw(0.0015 * per_degree, 0.07 * per_degree),
     )
+
+
+# Listed with the other presets (`jaxmr.PRESETS`) from here: it is the rig's reading of
+# the SAS brake, and the presets' module sits below the machines.
+PRESETS["sas_rig_brake"] = sas_rig_brake
 
 
 # Defaults: see `sas_rig`'s docstring. `l0s` and `Dx` are derived (rounded to 0.1 mm)

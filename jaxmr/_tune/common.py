@@ -68,6 +68,12 @@ def prepare(
     (`choose_integrator`, its runs read through `noise`)."""
     runs = check_inputs(system, controller, roads, samples)
     share = check_worst_share(worst_share, samples, who)
+    if not callable(parameters):
+        raise TypeError(
+            f"{who}: `parameters` must be a function of the (system, controller) pair "
+            "selecting the tuned leaves, e.g. `lambda pair: (pair[1].c_sky,)`; got "
+            f"{parameters!r}."
+        )
     where = as_tuple_where(parameters)
     space = as_space(log_space, bounds, who)
     # Every tuner judges, keeps and returns the hard law (T = 0), whatever temperature

@@ -42,7 +42,7 @@ def evaluate(
 ) -> dict[str, np.ndarray]:
     """Every metric of every road (a batch, one leading axis), e.g. on held-out seeds.
 
-    **Arguments:** as `tune` (`sensors`, `sensor_key`, `sampling`, `integrator`:
+    **Arguments:** as `tune` (`duration` [s] of each run; `sensors`, `sensor_key`, `sampling`, `integrator`:
     with none given, the substeps are chosen from the damper's stiffness on these
     roads, as `tune` chooses them; give a `TuneResult.integrator` to run a tuned
     pair at its tuning's steps); `metrics` maps names to per-run functions of a

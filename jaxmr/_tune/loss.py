@@ -16,6 +16,12 @@ from .space import to_values
 
 def comfort(solution: SystemSolution) -> jax.Array:
     """ISO 2631-1 Wk-weighted RMS body acceleration $a_w$ [m/s²] of one run."""
+    if not isinstance(solution, SystemSolution):
+        raise TypeError(
+            "comfort takes a closed-loop run of a vehicle (`simulate_system`), which "
+            f"has a body acceleration; got a {type(solution).__name__}. For a "
+            "measured or simulated acceleration [m/s²], use jaxmr.metrics.wk_rms."
+        )
     return wk_rms(solution["body_acceleration"], solution.dt)
 
 

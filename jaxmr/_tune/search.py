@@ -73,8 +73,9 @@ def random_search(
     `log_space=False` (per parameter, when `log_space` gives one bool per
     parameter); `population` of them are simulated together under `vmap`.
 
-    **Arguments:** as `tune` (`worst_share`, `sensors` and `sensor_key` included:
-    every candidate reads the same fixed noise, `tune`'s judging draw), plus
+    **Arguments:** as `tune` (`duration` [s] of each run; `worst_share`, `sensors`
+    and `sensor_key` included: every candidate reads the same fixed noise, `tune`'s
+    judging draw), plus
     `simulations` (the budget: give `tune`'s `TuneResult.simulations` for an
     equal-budget comparison), `spread`, `population`,
     `key` (the candidates' draw, not the noise).
@@ -241,8 +242,9 @@ def cma_es(
     sigmoid variables of `bounds`), started at the given parameters with step size
     `sigma` in those variables (0.5 in log space: a factor 1.6).
 
-    **Arguments:** as `tune` (`worst_share`, `sensors` and `sensor_key` included:
-    every candidate reads the same fixed noise, `tune`'s judging draw, so that a
+    **Arguments:** as `tune` (`duration` [s] of each run; `worst_share`, `sensors`
+    and `sensor_key` included: every candidate reads the same fixed noise, `tune`'s
+    judging draw, so that a
     generation is ranked on paired runs), plus `simulations` (the budget), `sigma`,
     `population` (default: CMA-ES's own 4 + 3 ln(dimension)), `target` (stop once the
     best training loss is at or below it: how many simulations a given loss costs),

@@ -139,6 +139,11 @@ def loops(
     """Three panels for a sweep: force against displacement, velocity and time (the
     legend, with `labels`, to the right of the last).
 
+    **Arguments:** as `loop`: `units` (`"linear"`: m, m/s, N; `"linear_mm"`: mm,
+    mm/s, N; `"rotary"`: deg, deg/s, N·m), `labels` (one per run),
+    `last_cycles_from` (draw only samples with t ≥ this time [s]); `title`, the
+    figure's title.
+
     **Returns:** the matplotlib Figure.
     """
     plt = _pyplot()
@@ -185,6 +190,8 @@ def energy_vs_current(
             "`currents` must be 1-D and `energies` 1-D or 2-D (one row per device), "
             f"got shapes {currents.shape} and {energies.shape}."
         )
+    if currents.size == 0:
+        raise ValueError("`currents` and `energies` are empty: nothing to draw.")
     if energies.shape[-1] != currents.size:
         raise ValueError(
             f"`energies` must have one value per current along its last axis: "
