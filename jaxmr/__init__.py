@@ -61,6 +61,7 @@ if TYPE_CHECKING:
         ExponentialLaw as ExponentialLaw,
         LinearLaw as LinearLaw,
         PolynomialLaw as PolynomialLaw,
+        SaturatingLaw as SaturatingLaw,
         TableLaw as TableLaw,
     )
     from ._damper import (

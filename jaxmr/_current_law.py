@@ -125,6 +125,38 @@ class ExponentialLaw(AbstractCurrentLaw):
         return self.a * jnp.exp(self.b * current)
 
 
+class SaturatingLaw(AbstractCurrentLaw):
+    r"""$p(i) = a + s\,i_0\,(1 - e^{-i/i_0})$: slope $s$ at zero input, bending over
+    to the ceiling $a + s\,i_0$ as the input grows past $i_0$ (an MR fluid's yield
+    stress saturates with the field, and a damper's magnetic circuit with the
+    coil's current). For $i_0 \to \infty$ it is the linear law $a + s\,i$, so a fit
+    started with $i_0$ a few times the inputs starts from the line and bends it
+    only as far as the data ask (`jaxmr.templates.with_saturation`).
+
+    **Arguments:**
+
+    - `a`: value at zero input, in the parameter's unit.
+    - `slope`: $s$, the slope at zero input, in the parameter's unit per A (or V).
+    - `i0`: $i_0$ > 0, the input scale of the saturation [A] (or [V]).
+    """
+
+    a: Float[Array, ""] = eqx.field(converter=as_parameter)
+    slope: Float[Array, ""] = eqx.field(converter=as_parameter)
+    i0: Float[Array, ""] = eqx.field(converter=as_parameter)
+
+    def __check_init__(self):
+        i0 = _plain(self.i0)
+        check_concrete(
+            lambda v: v > 0,
+            f"SaturatingLaw: `i0` must be > 0 [A or V], got {i0}.",
+            i0,
+        )
+
+    def __call__(self, current: Scalar) -> Scalar:
+        # expm1: exact to rounding where i << i0 (the law is then the line).
+        return self.a - self.slope * self.i0 * jnp.expm1(-current / self.i0)
+
+
 class TableLaw(AbstractCurrentLaw):
     r"""One value per tested current, linearly interpolated in between.
 

@@ -4,7 +4,8 @@ build new ones.
 `MODEL_TEMPLATES[name](experiments)` is a constrained initial guess (free parameters in
 `Positive` or `Bounded`, the rest `Fixed`) scaled from the experiments; `with_lag` and
 `with_channel_delay` turn a template into one whose model sees its input through a
-fitted first-order lag, or its force through a fitted channel delay; `data_scales`
+fitted first-order lag, or its force through a fitted channel delay, and
+`with_saturation` into one whose linear current laws level off (`SaturatingLaw`); `data_scales`
 gives the scales of the data (a `DataScales`) that the templates start from. `jaxmr
 fit` builds its candidates from these; the same calls serve a script:
 
@@ -31,6 +32,7 @@ from ._identify.templates import (
     input_varies_in_time as input_varies_in_time,
     with_channel_delay as with_channel_delay,
     with_lag as with_lag,
+    with_saturation as with_saturation,
 )
 
 __all__ = [
@@ -43,4 +45,5 @@ __all__ = [
     "input_varies_in_time",
     "with_channel_delay",
     "with_lag",
+    "with_saturation",
 ]

@@ -224,7 +224,7 @@ def test_ctrl_c_writes_the_best_model_so_far(
     assert np.median(kept) < np.median(jaxmr.record_nrmse(start, experiments))
 
 
-def test_predict(fitted, files, tmp_path):
+def test_predict(fitted, files, tmp_path, capsys):
     _, params, _ = fitted
     out = tmp_path / "pred.csv"
     status, stdout = _run(["predict", params, files[1], "--out", out])
@@ -243,6 +243,10 @@ def test_predict(fitted, files, tmp_path):
     assert np.all((band["F_lower"] < band["F"]) & (band["F"] < band["F_upper"]))
     # A well-determined fit: the band is far narrower than the noise (0.5 % of std F).
     assert np.max(band["F_upper"] - band["F_lower"]) < NOISE * np.std(band["F"])
+    # ... and the record's error is the noise: said on the terminal and in the file,
+    # so that the band's edges are not read as bounds on the measurement.
+    note = "the band holds the parameters' uncertainty only"
+    assert note in stdout and note in out.read_text()
     assert predicted.smoothing == 0.0 and "moving average" not in stdout
     # A prediction through a moving average says so: on the terminal, in its '# F:'
     # line and in its own '# smoothing:' line (it had read 0).
@@ -254,6 +258,12 @@ def test_predict(fitted, files, tmp_path):
     assert jaxmr.data.read_csv(smoothed).smoothing == 0.01
     (line,) = [x for x in smoothed.read_text().splitlines() if x.startswith("# F:")]
     assert "0.01 s moving average" in line
+    # A prediction is not a measurement: `jaxmr fit` refuses to fit a model to it
+    # (it had fitted without a word), naming the file; nothing is written.
+    refit = tmp_path / "refit.json"
+    capsys.readouterr()
+    err = _error(["fit", "--model", "dahl", "--out", refit, out], capsys)
+    assert f"the force of {out} was predicted by jaxmr" in err and not refit.exists()
 
 
 def test_a_fit_saved_from_python_reads_as_the_command_lines(

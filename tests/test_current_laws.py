@@ -324,3 +324,68 @@ def test_with_throw_false_a_current_outside_a_table_is_one_runs_result():
         TABLE_MODEL, TABLE_MOTION, 2.0, TABLE_TS, integrator=ONE_STEP, throw=False
     )
     assert single.result == jaxmr.RESULTS.current_outside_table
+
+
+def test_saturating_law_starts_as_its_line_and_levels_off(tmp_path):
+    """p(i) = a + s i0 (1 - exp(-i/i0)): a at 0, slope s there, the ceiling
+    a + s i0 far above i0, the line a + s i for i0 much larger than i; finite
+    gradients at i = 0; i0 <= 0 refused; saved and read back exactly."""
+    law = jaxmr.SaturatingLaw(100.0, 1500.0, 0.3)
+    at = jnp.asarray  # the laws are called with arrays (checked in the suite)
+    assert float(law(at(0.0))) == 100.0
+    assert float(jax.grad(law)(at(0.0))) == pytest.approx(1500.0, rel=1e-12)
+    assert float(law(at(30.0))) == pytest.approx(100.0 + 1500.0 * 0.3, rel=1e-12)
+    line = jaxmr.SaturatingLaw(100.0, 1500.0, 1e6)
+    assert float(line(at(0.7))) == pytest.approx(100.0 + 1500.0 * 0.7, rel=1e-6)
+    grads = jax.grad(lambda m: m(at(0.0)))(law)
+    assert all(np.isfinite(float(g)) for g in (grads.a, grads.slope, grads.i0))
+    with pytest.raises(ValueError, match=r"`i0` must be > 0"):
+        jaxmr.SaturatingLaw(1.0, 1.0, 0.0)
+    model = jaxmr.Bingham(f_c=law, c0=800.0, velocity_scale=0.01)
+    jaxmr.save_model(model, tmp_path / "m.json")
+    back = jaxmr.load_model(tmp_path / "m.json")
+    assert float(back.f_c(at(0.45))) == float(law(at(0.45)))
+
+
+def test_with_saturation_follows_a_damper_whose_force_levels_off():
+    """A damper whose yield force saturates (i0 = 0.3 A), fitted at 0, 0.5, 0.75 and
+    1 A and scored at 0.25 A: the template's line misses the bend (held-out NRMSE
+    0.28 when this test was written), `with_saturation` recovers i0 within 10 % and
+    predicts the unseen current to the noise (1 %)."""
+    import jaxmr.data as jd
+    import jaxmr.templates as templates
+
+    truth = jaxmr.Bingham(
+        f_c=jaxmr.SaturatingLaw(100.0, 1500.0, 0.3),
+        c0=jaxmr.LinearLaw(800.0, 400.0),
+        velocity_scale=0.01,
+    )
+    rng = np.random.default_rng(0)
+    t = np.linspace(0.0, 1.5, 751)
+    x, v = 0.01 * np.sin(4 * np.pi * t), 0.04 * np.pi * np.cos(4 * np.pi * t)
+
+    def test(i):
+        bare = jd.Experiment(t, x, v, np.full_like(t, i), np.zeros_like(t), name=f"{i}")
+        (clean,) = jaxmr.predict_all(truth, [bare])
+        noise = 0.01 * np.std(clean) * rng.standard_normal(t.size)
+        return jd.Experiment(
+            t, x, v, bare.current, np.asarray(clean) + noise, name=f"{i}"
+        )
+
+    train = [test(i) for i in (0.0, 0.5, 0.75, 1.0)]
+    held = [test(0.25)]
+    bingham = templates.MODEL_TEMPLATES["bingham"]
+    line = jaxmr.fit(bingham(train), train, progress=False)
+    bent = jaxmr.fit(
+        templates.with_saturation(bingham, ("f_c",))(train), train, progress=False
+    )
+    assert bent.converged, bent.reason
+    assert float(bent.model.f_c.i0) == pytest.approx(0.3, rel=0.1)
+    held_line = float(np.asarray(jaxmr.record_nrmse(line.model, held))[0])
+    held_bent = float(np.asarray(jaxmr.record_nrmse(bent.model, held))[0])
+    assert held_bent < 0.03 and held_line > 5 * held_bent, (held_line, held_bent)
+    # Three parameters need three input levels; a field must hold a free line.
+    with pytest.raises(ValueError, match="2 input level"):
+        templates.with_saturation(bingham, ("f_c",))(train[:1] + train[-1:])
+    with pytest.raises(ValueError, match="`velocity_scale` of the template's Bingham"):
+        templates.with_saturation(bingham, ("velocity_scale",))(train)

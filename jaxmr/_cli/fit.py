@@ -29,6 +29,7 @@ from .files import (
     FORCE_HELP,
     check_writable_file,
     plan_outputs,
+    predicted_by_jaxmr,
     read_experiments,
     same_file,
     units,
@@ -107,8 +108,10 @@ def add_parser(subparsers) -> None:
         metavar="FILE",
         help=(
             "with --model auto: a file (one of FILE) held out to score the candidates "
-            "on; repeat for several (default: every other interior current level, or "
-            "the last third of each file when there are fewer than 3 files)"
+            "on; repeat for several (default: two folds, chosen from the files "
+            "(jaxmr.scores.cv_folds): every other interior input level held out, and "
+            "every third file; a time fold (the last third, then the last half, of "
+            "each file) fills in where there are too few levels or files)"
         ),
     )
     command.add_argument(
@@ -299,6 +302,16 @@ def _read(args: argparse.Namespace) -> list:
     experiments = read_experiments(
         args.files, need_force=True, why="fitting", accept_units=args.accept_units
     )
+    # A file `jaxmr predict` wrote holds the model's force, not a measurement: a fit
+    # to it fits a model to a model (`jaxmr report` only warns, as comparing is
+    # harmless).
+    predicted = [str(p) for p in args.files if predicted_by_jaxmr(p)]
+    if predicted:
+        raise CLIError(
+            f"the force of {', '.join(predicted)} was predicted by jaxmr (its "
+            "'# F:' or '# T:' line says 'predicted by jaxmr'), not measured: fit the "
+            "measured files"
+        )
     experiments = with_processing(
         experiments, args.smoothing, "smoothing", "--smoothing"
     )

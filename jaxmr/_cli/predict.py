@@ -154,6 +154,10 @@ def run(args: argparse.Namespace) -> int:
                 stacklevel=2,
             )
         print(_prediction_error(args.file, experiment, predicted), flush=True)
+        narrow = _band_narrower_than_error(experiment, predicted, band)
+        if narrow is not None:
+            print(f"{args.file}: note: {narrow}", flush=True)
+            comment += f"\nnote: {narrow}"
     write_atomically(
         out,
         lambda path: jaxmr.data.write_csv(result, path, comment=comment, band=band),
@@ -175,6 +179,34 @@ def diverged_message(path, experiment, predicted) -> str:
         "there (a step in one that the other does not show) and that the motion "
         "lies within the range the model was fitted on; else the model's parameters "
         "do not suit this input"
+    )
+
+
+# A band whose median half-width is below this share of the record's RMSE is said to
+# be narrow: most of the error is then outside what the band describes.
+NARROW_BAND = 0.5
+
+
+def _band_narrower_than_error(experiment, predicted, band) -> str | None:
+    """Words for a band much narrower than the record's error (after the discarded
+    start), or None. A user trial read a ±28 N band beside an RMSE of 185 N in the
+    CSV alone, and trusted its edges as bounds on the measurement."""
+    if band is None:
+        return None
+    t = np.asarray(experiment.t)
+    keep = t >= t[0] + experiment.discard
+    measured = np.asarray(experiment.force, float)[keep]
+    error = float(np.sqrt(np.mean((np.asarray(predicted)[keep] - measured) ** 2)))
+    half = float(np.median((np.asarray(band.upper) - np.asarray(band.lower))[keep]) / 2)
+    if not (np.isfinite(error) and error > 0 and half < NARROW_BAND * error):
+        return None
+    force_unit, _ = units(experiment)
+    return (
+        f"the band's median half-width ({half:.3g} {force_unit}) is "
+        f"{error / max(half, 1e-300):.3g}x below this record's RMSE ({error:.3g} "
+        f"{force_unit}): the band holds the parameters' uncertainty only, and the "
+        "rest of the error (the model's structure, the noise) lies outside it; it is "
+        "not a bound on the measurement"
     )
 
 

@@ -181,10 +181,14 @@ def record_nrmse(
 
 
 def moving_average(values, t, width: float) -> np.ndarray:
-    """Centred moving average of `width` [s] of samples at times `t`, the window
-    shrinking at the ends (as MATLAB's `movmean`); `width = 0` returns the values.
-    The trapezoidal integral read at the window's ends (the same window as `fit`'s
-    `smoothing`)."""
+    """Centred moving average of `width` [s] of samples at times `t`: the
+    trapezoidal integral of the piecewise-linear signal over [t − w/2, t + w/2]
+    divided by the window's length, the window shrinking at the ends (the same
+    window as `fit`'s `smoothing`); `width = 0` returns the values. Unlike MATLAB's
+    `movmean`, whose window is a whole number of samples (off-centre for an even
+    number), it is exactly centred for any width: the two differ where a window
+    spans a few samples (a review measured up to a factor 2 in single files'
+    NRMSE on the UTFSM 2 mm/5 Hz tests, 4-sample windows)."""
     values, t = np.asarray(values, float), np.asarray(t, float)
     if not (np.isfinite(width) and width >= 0):
         raise ValueError(

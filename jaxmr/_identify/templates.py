@@ -35,11 +35,12 @@ A rotary brake reads the same with angle [rad], angular velocity [rad/s] and tor
 from collections.abc import Callable, Sequence
 from typing import NamedTuple
 
+import equinox as eqx
 import numpy as np
 
 from .._channel import ChannelDelay
 from .._current_dynamics import FirstOrderLag
-from .._current_law import ExponentialLaw, LinearLaw, PolynomialLaw
+from .._current_law import ExponentialLaw, LinearLaw, PolynomialLaw, SaturatingLaw
 from .._damper import Damper
 from .._hysteresis import (
     AbstractHysteresis,
@@ -441,6 +442,58 @@ def with_lag(template: Callable[[Sequence], AbstractHysteresis]):
     lagged.__name__ = f"{template.__name__}_lag"
     lagged.__doc__ = f"`{template.__name__}` behind a fitted first-order input lag."
     return lagged
+
+
+# `with_saturation` starts each law's input scale i0 at this multiple of the largest
+# input: the law then bends by under 20 % of its slope over the inputs (it is nearly
+# the template's line) and the fit bends it as far as the data ask.
+SATURATION_START = 3.0
+
+
+def with_saturation(
+    template: Callable[[Sequence], AbstractHysteresis | Damper], fields: Sequence[str]
+):
+    """A template whose linear current laws in `fields` (names of the hysteresis
+    model's parameters, e.g. `("alpha",)` for a Bouc–Wen or Spencer model's
+    hysteretic force, `("f_c",)` for Bingham's yield force) saturate instead: each
+    becomes a `SaturatingLaw` with the template's value and slope at zero input and a
+    free input scale i0 started at `SATURATION_START` × the largest input (nearly the
+    line). For a damper whose force levels off with current; it needs 3 or more
+    input levels (3 parameters per law). Only the laws named: a law the data show
+    straight (a viscous coefficient, often) would have an undetermined i0."""
+    fields = (fields,) if isinstance(fields, str) else tuple(fields)
+    if not fields:
+        raise ValueError("with_saturation: name at least one field, e.g. ('alpha',).")
+
+    def saturating(experiments: Sequence):
+        experiments = experiment_list(experiments)
+        levels = {round(float(np.mean(np.asarray(e.current))), 9) for e in experiments}
+        if len(levels) < 3:
+            raise ValueError(
+                f"with_saturation: a saturating law has 3 parameters and the "
+                f"experiments have {len(levels)} input level(s); give 3 or more."
+            )
+        top = max(float(np.max(np.abs(np.asarray(e.current)))) for e in experiments)
+        model = template(experiments)
+        inner = model.hysteresis if isinstance(model, Damper) else model
+        for field in fields:
+            law = getattr(inner, field, None)
+            if not (isinstance(law, LinearLaw) and isinstance(law.b, Positive)):
+                raise ValueError(
+                    f"with_saturation: `{field}` of the template's "
+                    f"{type(inner).__name__} is not a linear law with a free slope "
+                    f"(got {type(law).__name__}); name a field that is."
+                )
+            bent = SaturatingLaw(law.a, law.b, Positive(SATURATION_START * top))
+            inner = eqx.tree_at(lambda m, f=field: getattr(m, f), inner, bent)
+        if isinstance(model, Damper):
+            return eqx.tree_at(lambda d: d.hysteresis, model, inner)
+        return inner
+
+    name = getattr(template, "__name__", "model")
+    saturating.__name__ = f"{name}_saturating"
+    saturating.__doc__ = f"`{name}` with saturating laws for {', '.join(fields)}."
+    return saturating
 
 
 # The largest force-channel delay a fit with `with_channel_delay` considers [s]: a few
