@@ -456,6 +456,20 @@ def test_report(fitted, files, tmp_path):
     assert "Fit: converged" in markdown or "Fit: stalled" in markdown
     assert markdown.count("| dahl_") == 3
     assert "Median NRMSE" in stdout
+    # The relative error is against the size the fit's warnings use, saved with each
+    # parameter (`magnitude`), and marked where that is not the value.
+    data = json.loads(params.read_text())
+    (row,) = [p for p in data["report"]["parameters"] if p["name"] == ".k_w.b"]
+    assert row["magnitude"] == abs(row["value"])  # a well-determined slope
+    row["magnitude"] = 100 * abs(row["value"])
+    edited = tmp_path / "edited.json"
+    edited.write_text(json.dumps(data))
+    _run(["report", edited, *files, "--out", tmp_path / "again"])
+    markdown = (tmp_path / "again" / "report.md").read_text()
+    (line,) = [x for x in markdown.splitlines() if x.startswith("| .k_w.b |")]
+    relative = 100 * row["std_error"] / row["magnitude"]
+    assert line.endswith(f"| {relative:.1f}%* |"), line
+    assert "a small effect, not a poorly determined one" in markdown
 
 
 def _error(argv, capsys) -> str:
@@ -1265,3 +1279,29 @@ def test_a_state_that_leaves_its_bounds_is_a_failure_not_a_force(
     err = _error(["report", params, *files, "--out", tmp_path / "r"], capsys)
     assert "diverged at t = " in err
     assert not (tmp_path / "r" / "report.md").exists()
+
+
+def test_fit_with_a_saturating_law(files, tmp_path, capsys):
+    """`--saturating FIELD` bends the named model's law for FIELD into a
+    `SaturatingLaw` (saved and read back by `jaxmr report`); it is refused with
+    auto, and for a field that is not a linear law, with the reason. An output
+    path under a file is named as such (it said "does not exist")."""
+    out = tmp_path / "sat.json"
+    status, stdout = _run(
+        ["fit", "--model", "dahl", "--saturating", "k_w", "--out", out, *files]
+    )
+    assert status == 0 and "fitting dahl (saturating k_w)" in stdout
+    model = jaxmr.load_model(out)
+    assert isinstance(model.k_w, jaxmr.SaturatingLaw)
+    assert json.loads(out.read_text())["report"]["template"] == "dahl (saturating k_w)"
+    err = _error(
+        ["fit", "--saturating", "k_w", "--out", tmp_path / "a.json", *files], capsys
+    )
+    assert "--saturating bends a named model's laws: give --model" in err
+    err = _error(
+        ["fit", "--model", "dahl", "--saturating", "rho", "--out", tmp_path / "b.json",
+         *files], capsys,
+    )  # fmt: skip
+    assert "`rho` of the template's Dahl is not a linear law" in err
+    err = _error(["fit", "--model", "dahl", "--out", out / "p.json", *files], capsys)
+    assert "which is a file, not a directory" in err

@@ -640,3 +640,34 @@ def test_an_experiment_shorter_than_the_parameters_is_named():
         ValueError, match=r"no more samples than the 3 free .*'cut' \(3\)"
     ):
         jaxmr.fit(dahl_guess(), [whole, cut], progress=False)
+
+
+def _exp_residual(y, static, data, extra):
+    """exp(a) - target per member (`data`, batched): from a = 0 to 1 in a step or
+    two; from a = -30 to 1e6 a long climb."""
+    return jnp.stack([jnp.exp(y["a"]) - data, 0.0 * y["a"]])
+
+
+def test_an_interrupt_leaves_the_problems_that_had_stopped_their_verdicts():
+    """Independent problems (`fit_each`'s batch): stopped while one still runs, the
+    one that had converged keeps its verdict and steps; only the running one is
+    interrupted (every problem was "interrupted" before, its real outcome lost)."""
+    stop = threading.Event()
+
+    def progress(k, loss):
+        if k == 6:
+            stop.set()
+
+    _, outcomes = iterate(
+        jaxmr.FastLevenbergMarquardt(),
+        {"a": jnp.array([0.0, -30.0])},
+        (_exp_residual, None, jnp.array([1.0, 1e6]), None),
+        0,  # the data batched along their first axis: independent problems
+        200,
+        8,
+        1e-4,
+        progress,
+        stop=stop,
+    )
+    assert outcomes[0].stop is jaxmr.StopReason.TOLERANCE and outcomes[0].steps < 6
+    assert (outcomes[1].stop, outcomes[1].steps) == (jaxmr.StopReason.INTERRUPTED, 6)

@@ -377,6 +377,11 @@ def plan_outputs(targets: Sequence[Path], inputs, *, force: bool) -> set[Path]:
 def check_writable_file(path: Path) -> None:
     """Fail before a long fit rather than after it."""
     parent = path.parent
+    if parent.exists() and not parent.is_dir():
+        raise CLIError(
+            f"the output file {str(path)!r} would go in {str(parent)!r}, which is a "
+            "file, not a directory"
+        )
     if not parent.is_dir():
         raise CLIError(f"the directory of the output file {str(path)!r} does not exist")
     if not os.access(parent, os.W_OK):

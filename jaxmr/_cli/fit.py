@@ -145,6 +145,18 @@ def add_parser(subparsers) -> None:
         ),
     )
     command.add_argument(
+        "--saturating",
+        action="append",
+        default=None,
+        metavar="FIELD",
+        help=(
+            "with a named --model: its current law for FIELD (e.g. alpha, the "
+            "hysteretic force of bouc_wen or spencer; f_c for bingham) levels off "
+            "with current (jaxmr.SaturatingLaw, started at the template's line); "
+            "repeat for several; needs 3 or more input levels"
+        ),
+    )
+    command.add_argument(
         "--channel-delay",
         action="store_true",
         help=(
@@ -358,6 +370,11 @@ def _fit_model(args, experiments: list, options: dict, log: "_FitLog"):
     **Returns:** its name, its `FitResult`, and the `Selection` (None for one model).
     """
     if args.model == AUTO:
+        if args.saturating:
+            raise CLIError(
+                "--saturating bends a named model's laws: give --model (e.g. "
+                "--model bouc_wen --saturating alpha)"
+            )
         selection = _select(args, experiments, options, log)
         return selection.name, selection.result, selection
     name, result = _fit_one(args, experiments, options)
@@ -370,6 +387,9 @@ def _fit_one(args, experiments: list, options: dict):
 
     name = args.model
     template = jaxmr.templates.MODEL_TEMPLATES[name]
+    if args.saturating:
+        template = jaxmr.templates.with_saturation(template, tuple(args.saturating))
+        name = f"{name} (saturating {', '.join(args.saturating)})"
     if args.channel_delay:
         template = jaxmr.templates.with_channel_delay(template)
         name = f"{name}{DELAY_SUFFIX}"

@@ -309,19 +309,23 @@ def run(args: argparse.Namespace) -> int:
 def _parameter_rows(model, fit_report: dict) -> list[tuple[str, float, str, str]]:
     """(name, value, standard error or 'fixed', relative standard error) per
     parameter of the model."""
-    errors = {
-        p.get("name"): p.get("std_error")
-        for p in fit_report.get("parameters", [])
-        if isinstance(p, dict)
-    }
+    entries = [p for p in fit_report.get("parameters", []) if isinstance(p, dict)]
+    errors = {p.get("name"): p.get("std_error") for p in entries}
+    # What the fit's warnings take each error relative to (`FitResult.magnitudes`;
+    # absent from older reports): a force offset fitted to ~0 read "88575 %" here
+    # beside the command's own "163 %*".
+    sizes = {p.get("name"): p.get("magnitude") for p in entries}
     rows = []
     for name, value in _model_parameters(model):
         if name in errors:
             se = errors[name]
+            size = sizes.get(name)
+            size = abs(value) if not isinstance(size, (int, float)) else size
             if se is None:  # saved as null: not finite
                 rows.append((name, value, "n/a", "n/a"))
             else:
-                relative = f"{abs(se / value):.1%}" if value != 0 else "n/a"
+                mark = "*" if size != abs(value) else ""
+                relative = f"{abs(se / size):.1%}{mark}" if size != 0 else "n/a"
                 rows.append((name, value, f"{se:.3g}", relative))
         else:
             rows.append((name, value, "fixed" if errors else "", ""))
@@ -433,6 +437,13 @@ def _report_markdown(
     ]
     for name, value, se, relative in parameters:
         lines.append(f"| {name} | {value:.6g} | {se} | {relative} |")
+    if any(relative.endswith("*") for *_, relative in parameters):
+        lines += [
+            "",
+            "\\* relative to the size at which the parameter would move the force "
+            "by 1 % of the model's largest term (its value is smaller: a small "
+            "effect, not a poorly determined one), as in the fit's warnings.",
+        ]
     lines += ["", *more]
     warnings = getattr(args, "warnings", [])
     if warnings:

@@ -885,7 +885,11 @@ def iterate(
         interrupted = True
 
     def why(j) -> StopReason:
-        if interrupted:  # the whole batch: its caller asked to stop
+        # The caller asked to stop: the whole batch of starts of one fit, but of
+        # independent problems (`fit_each`) only those still running; one that had
+        # stopped keeps its own verdict (all were "interrupted" before).
+        own_stop = converged[j] or failed[j] or stalled[j]
+        if interrupted and (data_axis is None or not own_stop):
             return StopReason.INTERRUPTED
         if not np.isfinite(best_loss[j]):
             return StopReason.NONFINITE
