@@ -671,3 +671,41 @@ def test_an_interrupt_leaves_the_problems_that_had_stopped_their_verdicts():
     )
     assert outcomes[0].stop is jaxmr.StopReason.TOLERANCE and outcomes[0].steps < 6
     assert (outcomes[1].stop, outcomes[1].steps) == (jaxmr.StopReason.INTERRUPTED, 6)
+
+
+def test_a_ctrl_c_while_a_finished_fit_reports_does_not_lose_it(monkeypatch, capsys):
+    """A Ctrl-C (SIGINT) while `fit` and `fit_each` compute their reports after the
+    loop: said, set aside, and the results returned (it raised out of the fit and
+    every finished fit was lost); a second one interrupts as usual."""
+    import os
+    import signal
+
+    from jaxmr._identify import fitting
+
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+    runs = dahl_runs((5.0,), (3.0,))
+    report, each_report = fitting._report, fitting._each_report
+
+    def interrupted(function, times):
+        def wrapper(*args, **kwargs):
+            for _ in range(times):
+                os.kill(os.getpid(), signal.SIGINT)
+            return function(*args, **kwargs)
+
+        return wrapper
+
+    options = dict(max_steps=3, **_QUICK)
+    monkeypatch.setattr(fitting, "_report", interrupted(report, 1))
+    result = jaxmr.fit(dahl_guess(), runs, **options)
+    assert result.num_steps == 3 and np.all(np.isfinite(result.std_errors))
+    assert (
+        "jaxmr.fit: Ctrl-C while the fitted model's errors" in capsys.readouterr().err
+    )
+    monkeypatch.setattr(fitting, "_each_report", interrupted(each_report, 1))
+    (each,) = jaxmr.fit_each(dahl_guess(), runs, **options)
+    assert each.num_steps == 3 and "jaxmr.fit_each: Ctrl-C" in capsys.readouterr().err
+    monkeypatch.setattr(fitting, "_report", interrupted(report, 2))
+    with pytest.raises(KeyboardInterrupt):
+        jaxmr.fit(dahl_guess(), runs, **options)
+    # Python's own handler is back.
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler

@@ -29,6 +29,7 @@ from .data import (
     per_experiment,
     stack,
 )
+from .interrupts import finishing
 from .residual import (
     guarded_residuals,
     residuals,
@@ -440,19 +441,20 @@ def fit(
         else data
     )
     stats_data = _lanes_on_devices(stats_data)
-    result = _report(
-        unscaled_member(best_y, scale, best),
-        static,
-        data,
-        outcome,
-        stats_data,
-        identifiability_threshold,
-        # On the fit's own data, its own residual and trace: a guarded fit's best
-        # point is inside the bounds there (its start was, and it accepts no point
-        # outside), where both residuals are the same. Refined steps are judged
-        # anew, so they are not guarded.
-        residuals if refine else unscaled,
-    )
+    with finishing("jaxmr.fit"):
+        result = _report(
+            unscaled_member(best_y, scale, best),
+            static,
+            data,
+            outcome,
+            stats_data,
+            identifiability_threshold,
+            # On the fit's own data, its own residual and trace: a guarded fit's
+            # best point is inside the bounds there (its start was, and it accepts
+            # no point outside), where both residuals are the same. Refined steps
+            # are judged anew, so they are not guarded.
+            residuals if refine else unscaled,
+        )
     warn_broken_constraints(result.model, experiments)
     return result
 
@@ -587,6 +589,37 @@ def fit_each(
         mesh=mesh,
         stop=stop,
     )
+    with finishing("jaxmr.fit_each"):
+        return _each_report(
+            experiments,
+            problems,
+            options,
+            policy,
+            statistics_refinement,
+            outcomes,
+            best_y,
+            scale,
+            static,
+            n,
+            identifiability_threshold,
+        )
+
+
+def _each_report(
+    experiments,
+    problems,
+    options,
+    policy,
+    statistics_refinement,
+    outcomes,
+    best_y,
+    scale,
+    static,
+    n,
+    identifiability_threshold,
+) -> list[FitResult]:
+    """`fit_each`'s results from its loop's best points: each problem's simulation,
+    residual and Jacobian in one batched call, then its statistics."""
     # Every problem padded to one shape (and its refined data to another): the
     # reports then share one compiled simulation and one Jacobian, not one each.
     padded = pad_all(problems)
