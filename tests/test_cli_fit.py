@@ -164,6 +164,13 @@ def test_fit_writes_model_and_report(fitted, files):
     assert report["template"] == "dahl" and report["files"] == [str(f) for f in files]
     assert report["converged"] and not report["unidentified"]
     assert report["reason"]
+    # Enough to rerun it: the options as given, the versions and the devices.
+    assert report["settings"]["model"] == "dahl"
+    assert report["settings"]["max_steps"] == 200 and report["settings"]["starts"] == 1
+    environment = report["environment"]
+    assert environment["jax"] == jax.__version__
+    assert environment["jaxmr"] == jaxmr.__version__
+    assert environment["devices"] == jax.device_count() >= 1
     # At the noise floor: NRMSE ≈ 0.005 in every file.
     for row in report["per_file"]:
         assert row["nrmse"] < 2 * NOISE, row

@@ -684,7 +684,7 @@ def test_a_ctrl_c_while_a_finished_fit_reports_does_not_lose_it(monkeypatch, cap
 
     assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
     runs = dahl_runs((5.0,), (3.0,))
-    report, each_report = fitting._report, fitting._each_report
+    report, pad_all = fitting._report, fitting.pad_all
 
     def interrupted(function, times):
         def wrapper(*args, **kwargs):
@@ -701,7 +701,8 @@ def test_a_ctrl_c_while_a_finished_fit_reports_does_not_lose_it(monkeypatch, cap
     assert (
         "jaxmr.fit: Ctrl-C while the fitted model's errors" in capsys.readouterr().err
     )
-    monkeypatch.setattr(fitting, "_each_report", interrupted(each_report, 1))
+    # `fit_each`'s report starts by padding the problems.
+    monkeypatch.setattr(fitting, "pad_all", interrupted(pad_all, 1))
     (each,) = jaxmr.fit_each(dahl_guess(), runs, **options)
     assert each.num_steps == 3 and "jaxmr.fit_each: Ctrl-C" in capsys.readouterr().err
     monkeypatch.setattr(fitting, "_report", interrupted(report, 2))

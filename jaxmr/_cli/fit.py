@@ -229,7 +229,7 @@ def run(args: argparse.Namespace) -> int:
         report = _fit_report(
             name, args.files, experiments, result, elapsed, selection, warned
         )
-        report["settings"] = {"max_steps": args.max_steps, "starts": args.starts}
+        report["settings"] = _settings(args)
         _print_summary(name, result, elapsed, selection is not None)
         # Where the model was fitted, saved beside it (`jaxmr.load_model` gives it back).
         fitted_range = jaxmr.FittedRange.from_experiments(experiments)
@@ -671,6 +671,24 @@ def _rescue(write) -> str:
         Path(name).unlink(missing_ok=True)
         return f"; the model could not be saved elsewhere either ({e})"
     return f"; the model was saved to {name} instead"
+
+
+def _settings(args) -> dict:
+    """The options that chose and ran the fit, as given (a colleague reruns the same
+    command from them; the files are the report's `files`)."""
+    return {
+        "model": args.model,
+        "candidates": args.candidates,
+        "holdout": [str(p) for p in args.holdout] if args.holdout else None,
+        "saturating": args.saturating,
+        "channel_delay": args.channel_delay,
+        "max_steps": args.max_steps,
+        "starts": args.starts,
+        "finalists": args.finalists,
+        "smoothing": args.smoothing,
+        "discard": args.discard,
+        "accept_units": args.accept_units,
+    }
 
 
 def _fit_report(name, files, experiments, result, elapsed, selection, warnings) -> dict:

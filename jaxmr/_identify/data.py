@@ -491,7 +491,9 @@ def pack(
             if not scale > 0:
                 raise ValueError(
                     f"experiment {names[k]!r} has a constant force where it is scored: "
-                    "NRMSE weighting needs a varying force (use weighting='force')."
+                    "NRMSE weighting needs a varying force: check the force channel, "
+                    "or leave the record out (from Python, weighting='force' fits it "
+                    "as it is)."
                 )
             w = 1.0 / (scale * np.sqrt(np.sum(keep)))
         else:

@@ -589,78 +589,51 @@ def fit_each(
         mesh=mesh,
         stop=stop,
     )
+    # A Ctrl-C from here on is set aside once (`finishing`): the fits are done.
     with finishing("jaxmr.fit_each"):
-        return _each_report(
-            experiments,
-            problems,
-            options,
-            policy,
-            statistics_refinement,
-            outcomes,
-            best_y,
-            scale,
-            static,
-            n,
-            identifiability_threshold,
-        )
-
-
-def _each_report(
-    experiments,
-    problems,
-    options,
-    policy,
-    statistics_refinement,
-    outcomes,
-    best_y,
-    scale,
-    static,
-    n,
-    identifiability_threshold,
-) -> list[FitResult]:
-    """`fit_each`'s results from its loop's best points: each problem's simulation,
-    residual and Jacobian in one batched call, then its statistics."""
-    # Every problem padded to one shape (and its refined data to another): the
-    # reports then share one compiled simulation and one Jacobian, not one each.
-    padded = pad_all(problems)
-    stats_data = padded
-    if statistics_refinement > 1 and not outcomes[0].interrupted:
-        refined = policy.refined(statistics_refinement)
-        stats_data = pad_all(
-            [pack([e], refined, **o) for e, o in zip(experiments, options)]  # pyright: ignore[reportArgumentType]  # keywords of mixed types
-        )
-    best = jax.tree.map(lambda a: a[:n], gather(multiply(best_y, scale)))
-    # One batched simulation and one batched Jacobian for every problem (a loop of
-    # `_report`s dispatched 2 calls per problem: 256 fits spent longer reporting than
-    # fitting).
-    simulated, r, jac = _batched_statistics(
-        best, static, stack(padded), stack(stats_data)
-    )
-    simulated, r = np.asarray(simulated), np.asarray(r)
-    jac = [np.reshape(np.asarray(j), r.shape[:2] + (-1,)) for j in jax.tree.leaves(jac)]
-    J = np.concatenate(jac, axis=2)
-    results = []
-    for p in range(n):
-        free_p = jax.tree.map(lambda a, p=p: a[p], best)
-        data = padded[p]
-        stats = statistics_from(
-            r[p], J[p], free_p, static, kept_groups(data.kept_counts)
-        )
-        results.append(
-            assemble(
-                free_p,
-                static,
-                data.split(simulated[p]),
-                data.split(np.asarray(data.force)),
-                data.split(data.kept_mask()),
-                data.names,
-                stats,
-                outcomes[p],
-                identifiability_threshold,
-                times=data.split(np.asarray(data.t)),
+        # Every problem padded to one shape (and its refined data to another): the
+        # reports then share one compiled simulation and one Jacobian, not one each.
+        padded = pad_all(problems)
+        stats_data = padded
+        if statistics_refinement > 1 and not outcomes[0].interrupted:
+            refined = policy.refined(statistics_refinement)
+            stats_data = pad_all(
+                [pack([e], refined, **o) for e, o in zip(experiments, options)]  # pyright: ignore[reportArgumentType]  # keywords of mixed types
             )
+        best = jax.tree.map(lambda a: a[:n], gather(multiply(best_y, scale)))
+        # One batched simulation and one batched Jacobian for every problem (a loop of
+        # `_report`s dispatched 2 calls per problem: 256 fits spent longer reporting than
+        # fitting).
+        simulated, r, jac = _batched_statistics(
+            best, static, stack(padded), stack(stats_data)
         )
-    return results
+        simulated, r = np.asarray(simulated), np.asarray(r)
+        jac = [
+            np.reshape(np.asarray(j), r.shape[:2] + (-1,)) for j in jax.tree.leaves(jac)
+        ]
+        J = np.concatenate(jac, axis=2)
+        results = []
+        for p in range(n):
+            free_p = jax.tree.map(lambda a, p=p: a[p], best)
+            data = padded[p]
+            stats = statistics_from(
+                r[p], J[p], free_p, static, kept_groups(data.kept_counts)
+            )
+            results.append(
+                assemble(
+                    free_p,
+                    static,
+                    data.split(simulated[p]),
+                    data.split(np.asarray(data.force)),
+                    data.split(data.kept_mask()),
+                    data.names,
+                    stats,
+                    outcomes[p],
+                    identifiability_threshold,
+                    times=data.split(np.asarray(data.t)),
+                )
+            )
+        return results
 
 
 @eqx.filter_jit

@@ -7,8 +7,12 @@ import os
 from collections.abc import Sequence
 from pathlib import Path
 
+import jax
+import numpy as np
+
 from .._fitted_range import FittedRange
 from .._serialize import save_model
+from .._version import __version__
 from ..data import experiment_digest, file_digest
 from .data import experiment_list
 from .result import FitResult
@@ -106,6 +110,24 @@ def _fitted_rows(fitted: FitResult, experiments, files):
     return experiments, files
 
 
+def _environment() -> dict:
+    """What computed the fit: the versions and the devices (results may differ in
+    the last bits between versions and device counts: docs/scale-out.md)."""
+    import platform
+    from importlib.metadata import version
+
+    return {
+        "jaxmr": __version__,
+        "jax": jax.__version__,
+        "jaxlib": version("jaxlib"),
+        "numpy": np.__version__,
+        "python": platform.python_version(),
+        "platform": jax.default_backend(),
+        "devices": jax.device_count(),
+        "processes": jax.process_count(),
+    }
+
+
 def fit_report(
     result: FitResult | Selection,
     experiments: Sequence,
@@ -129,15 +151,21 @@ def fit_report(
       model's class).
 
     **Returns:** a dict: the template, the device and units (`force_unit`, `input`),
-    the parameters with standard errors, the magnitude each is relative to in the
-    warnings (`FitResult.magnitudes`) and their covariance (null where not finite), one row per experiment (`per_file`: file, its SHA-256, the numbers'
-    SHA-256, experiment name, RMSE [force unit], NRMSE, where its simulation
-    diverged [s]), the verdict (`reason`, `stop`, `outcome`, `converged`,
-    `num_steps`, `loss`, `unidentified`, `poorly_determined`, `poor_fit`,
-    `interrupted`), each experiment's `smoothing_s` and `discard_s`, and for a
-    `Selection` its `selection` (folds, ranking, decision).
+    `environment` (the versions of jaxmr, JAX, jaxlib, NumPy and Python, the
+    platform and the device and process counts), the parameters with standard
+    errors, the magnitude each is relative to in the warnings
+    (`FitResult.magnitudes`) and their covariance (null where not finite), one row
+    per experiment (`per_file`: file, its SHA-256, the numbers' SHA-256, experiment
+    name, RMSE [force unit], NRMSE, where its simulation diverged [s]), the verdict
+    (`reason`, `stop`, `outcome`, `converged`, `num_steps`, `loss`, `unidentified`,
+    `poorly_determined`, `poor_fit`, `interrupted`), each experiment's
+    `smoothing_s` and `discard_s`, and for a `Selection` its `selection` (folds,
+    ranking, decision). `jaxmr fit` adds `settings` (its options), `warnings` (what
+    it warned of) and `fit_time_s` (its wall time [s]); the parameter file holds
+    the fitted range beside the report (`fitted_range`).
     """
     selection = result if isinstance(result, Selection) else None
+    environment = _environment()
     fitted: FitResult = result.result if isinstance(result, Selection) else result
     experiments, files = _fitted_rows(fitted, experiments, files)
     if template is None:
@@ -145,6 +173,7 @@ def fit_report(
     paths = [None] * len(experiments) if files is None else [str(f) for f in files]
     force_unit, input_unit = units(experiments[0])
     report = {
+        "environment": environment,
         "template": template,
         "device": "rotary" if experiments[0].rotary else "linear",
         "force_unit": force_unit,
