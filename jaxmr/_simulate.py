@@ -20,6 +20,7 @@ from ._fitted_range import FittedRange, check_fitted_range
 from ._hysteresis import AbstractHysteresis
 from ._integrate import AbstractIntegrator, Adaptive, FixedStep
 from ._misc import Check, as_float_array, guarded, is_concrete, warn_if_float32
+from ._parameter import numbers_as_arrays
 from ._signal import AbstractSignal, Constant, as_signal
 from ._solution import RESULTS, Solution
 
@@ -520,12 +521,6 @@ def _kind(module) -> str:
     return type(module).__name__
 
 
-def _number_as_array(x):
-    if isinstance(x, (int, float)) and not isinstance(x, bool):
-        return as_float_array(x)
-    return x
-
-
 def _stack(items, what: str):
     """A batched module from a sequence of modules of the same structure."""
     items = list(items)
@@ -537,7 +532,7 @@ def _stack(items, what: str):
         # A number set by `eqx.tree_at(..., 300.0)` is a Python float, not an array:
         # as an array it stacks with the other members' (only done here, off the
         # common path: a sweep's members are many).
-        items = [jax.tree.map(_number_as_array, m) for m in items]
+        items = [numbers_as_arrays(m) for m in items]
         arrays = [eqx.filter(m, eqx.is_array) for m in items]
         structures = {jax.tree.structure(a) for a in arrays}
     if len(structures) != 1:

@@ -11,6 +11,7 @@ import csv
 import io
 import itertools
 import json
+import warnings
 
 import numpy as np
 import pytest
@@ -231,6 +232,19 @@ def test_batches_give_the_same_information(menu, design):
     assert batched.indices == design.indices
 
 
+def test_parameters_no_candidate_determines_are_named(menu):
+    """Candidates at one current cannot tell a law's intercept from its slope: every
+    plan is singular. Said, naming the parameters (the plan was written silently,
+    its log det -inf)."""
+    one_current = [e for e in menu if float(np.mean(e.current)) == 0.5]
+    with pytest.warns(UserWarning, match=r"determines .*\.k_x\.a.*\.k_x\.b"):
+        plan = jaxmr.design_experiments(truth(), one_current, 2)
+    assert not np.all(np.isfinite(plan.std_errors_all))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # a menu that determines them: no warning
+        assert np.isfinite(jaxmr.design_experiments(truth(), menu, 3).log_det)
+
+
 def test_arguments_are_checked(menu):
     with pytest.raises(ValueError, match="`k` must be an integer from 1 to"):
         jaxmr.design_experiments(truth(), menu, 13)
@@ -315,3 +329,10 @@ def test_cli_writes_the_plan_and_never_overwrites(tmp_path, design):
     bare.write_text(json.dumps(jaxmr.model_to_dict(model)))
     status, _, stderr = _run(argv[:1] + [bare] + argv[2:4] + ["--out", tmp_path / "x"])
     assert status == 1 and "no fit report" in stderr
+    # A design refused after its folder was made (criterion A without parameters):
+    # nothing is left behind (an empty folder was).
+    refused = tmp_path / "refused"
+    status, _, stderr = _run(
+        argv[:4] + ["--out", refused, "--criterion", "A"] + argv[6:]
+    )
+    assert status == 1 and "criterion" in stderr and not refused.exists()

@@ -565,3 +565,21 @@ def test_bad_parameters(material):
             viscosity=0.1,
             induction=0.5,
         )
+
+
+def test_a_brake_that_would_drive_or_cannot_exist_is_refused_when_built():
+    """A negative K1 (the yield stress below 0 at small fields) made the brake drive
+    its rotor (-75 N·m at +60 rpm); reversed radii, a zero gap and a negative
+    viscosity were first named inside a simulation, as if the current were wrong."""
+    disc = jaxmr.mrb_107_3().hysteresis
+    names = ("K1", "K2", "K3", "R_i", "R_o", "gap", "viscosity", "induction")
+    fields = {name: getattr(disc, name) for name in names}
+    for change, match in (
+        ({"K1": -1e6}, r"`K1` must be >= 0 \(Pa/T\)"),
+        ({"R_i": 0.05, "R_o": 0.035}, r"the radii must satisfy 0 <= R_i < R_o"),
+        ({"gap": 0.0}, r"`gap` must be > 0 \(m\)"),
+        ({"viscosity": -1.0}, r"`viscosity` must be >= 0"),
+    ):
+        with pytest.raises(ValueError, match=rf"BinghamDisc: {match}"):
+            type(disc)(**(fields | change))
+    assert isinstance(type(disc)(**fields), type(disc))  # the preset's own values

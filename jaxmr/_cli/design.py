@@ -262,6 +262,7 @@ def run(args: argparse.Namespace) -> int:
     inputs = [args.model] + list(args.candidates or []) + list(args.already)
     refuse_inputs([out / PLAN] + [out / f for f in files], inputs)
     _refuse_existing([out / PLAN])
+    created = not out.exists()
     prepare_directory(out)
 
     try:
@@ -276,6 +277,9 @@ def run(args: argparse.Namespace) -> int:
             noise=args.noise,  # each test with its own discard and smoothing
         )
     except (ValueError, TypeError) as e:
+        # Nothing written: the folder made for the plan goes too (it was left empty).
+        if created and not any(out.iterdir()):
+            out.rmdir()
         raise CLIError(str(e)) from e
     print(design, flush=True)
     print(

@@ -30,6 +30,7 @@ earlier fit: sequential design with `already=`).
 
 import dataclasses
 import math
+import warnings
 from collections.abc import Callable, Sequence
 from typing import NamedTuple
 
@@ -677,6 +678,19 @@ def design_experiments(
     contributions = np.array(
         [log_det - _log_det(M - information[c]) for c in chosen], dtype=float
     )
+    std_errors_all = _std_errors(total, value_scale)
+    unseen = [n for n, e in zip(names, std_errors_all) if not np.isfinite(e)]
+    if unseen:
+        # Every plan is then singular (log det -inf, each test's drop nan): the
+        # plan was written and the command exited 0 without a word.
+        warnings.warn(
+            f"design_experiments: no candidate test (nor all of them together) "
+            f"determines {', '.join(unseen)}: every plan leaves them unknown (an "
+            "infinite standard error). Add candidates that excite them (another "
+            "current, amplitude or frequency), or fix them (jaxmr.Fixed).",
+            UserWarning,
+            stacklevel=2,
+        )
     return Design(
         indices=tuple(chosen),
         plan=tuple(candidates[c] for c in chosen),
@@ -691,7 +705,7 @@ def design_experiments(
         log_det_all=_log_det(total),
         contributions=contributions,
         std_errors=_std_errors(M, value_scale),
-        std_errors_all=_std_errors(total, value_scale),
+        std_errors_all=std_errors_all,
         greedy_indices=tuple(greedy),
         swaps=swaps,
         candidate_names=tuple(m.name for m in motions[:n]),

@@ -445,8 +445,9 @@ def with_lag(template: Callable[[Sequence], AbstractHysteresis]):
 
 
 # `with_saturation` starts each law's input scale i0 at this multiple of the largest
-# input: the law then bends by under 20 % of its slope over the inputs (it is nearly
-# the template's line) and the fit bends it as far as the data ask.
+# input: its rise over the inputs is then within 15 % of the template's line
+# (3 (1 - e^(-1/3)) = 0.85 of it at the largest), and the fit bends it as far as the
+# data ask.
 SATURATION_START = 3.0
 
 

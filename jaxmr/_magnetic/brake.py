@@ -11,7 +11,7 @@ from .._current_law import LinearLaw, Parameter, as_parameter
 from .._custom_types import Array, ArrayLike, Float, Scalar, ScalarLike, State
 from .._damper import Damper
 from .._hysteresis import AbstractHysteresis
-from .._misc import Check
+from .._misc import Check, check_concrete
 from .material import HodgdonMaterial, smooth_sign
 from .stage import MagneticStage
 
@@ -97,7 +97,23 @@ class BinghamDisc(AbstractHysteresis):
         direction = smooth_sign(v, self.velocity_scale)
         return yield_torque * direction + self.viscous_coefficient() * v
 
-    def constraints(self):
+    def __check_init__(self):
+        # The geometry and the fluid, checked when built even where the induction is
+        # a law or a magnetic stage's (the base class then waits for a current): a
+        # bad radius or gap was first named inside a simulation, as if the current
+        # were wrong.
+        plain = {
+            name: getattr(self, name)
+            for name in ("R_i", "R_o", "gap", "viscosity", "velocity_scale", "K1")
+        }
+        if any(isinstance(v, eqx.Module) for v in plain.values()):
+            return  # a fit's constraint wrappers: checked when resolved
+        for check in self._geometry():
+            check_concrete(
+                check.ok, check.named(type(self).__name__).message(), *plain.values()
+            )
+
+    def _geometry(self) -> list[Check]:
         return [
             Check(
                 (self.R_i >= 0) & (self.R_o > self.R_i),
@@ -113,6 +129,22 @@ class BinghamDisc(AbstractHysteresis):
                 "`velocity_scale` must be >= 0 (0 for the exact sign)",
                 self.velocity_scale,
             ),
+            Check(
+                self.K1 >= 0,
+                "`K1` must be >= 0 (Pa/T): the yield stress rises from 0 with the "
+                "field (a negative one drives the rotor instead of braking it)",
+                self.K1,
+            ),
+        ]
+
+    def constraints(self):
+        return self._geometry() + [
+            Check(
+                self.yield_stress(self.induction) >= 0,
+                "the yield stress τ_y(B_f) must be >= 0 (Pa) at the fluid's field: "
+                "check K1, K2, K3 (a negative one drives the rotor)",
+                self.induction,
+            )
         ]
 
 
