@@ -325,6 +325,19 @@ def from_opensees(
             f"materials of the Bouc–Wen family), got {material!r}."
         )
     p = _parameters(material, params)
+    # In OpenSees' own names first: past these, jaxmr's constructor named its own
+    # parameters (its `alpha` = (1 - alpha) ko "got -10000" for OpenSees' alpha 1.5).
+    if not p["ko"] > 0:
+        raise ValueError(
+            f"from_opensees: OpenSees' `ko` (the initial stiffness) must be > 0 [N/m], "
+            f"got {p['ko']!r}."
+        )
+    if not 0 <= p["alpha"] <= 1:
+        raise ValueError(
+            "from_opensees: OpenSees' `alpha` (the ratio of post-yield to initial "
+            f"stiffness) must be in [0, 1], got {p['alpha']!r}: jaxmr's hysteretic "
+            "stiffness (1 - alpha) ko and linear stiffness alpha ko must be >= 0."
+        )
     hysteretic = (1 - p["alpha"]) * p["ko"]
     common: dict[str, Any] = dict(
         A0=p["Ao"], beta=p["gamma"], gamma=p["beta"], n=p["n"], c=0.0, f0=0.0
@@ -362,6 +375,7 @@ def from_opensees(
         )
     except ValueError as e:
         raise ValueError(
-            f"from_opensees: OpenSees' {material} with {p} has no jaxmr counterpart: "
-            f"{e}"
+            f"from_opensees: OpenSees' {material} with {p} has no jaxmr counterpart "
+            f"(in jaxmr's names, alpha = (1 - alpha) ko, k0 = alpha ko, beta and "
+            f"gamma swapped: see the docstring): {e}"
         ) from e

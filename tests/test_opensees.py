@@ -319,8 +319,17 @@ def test_to_opensees_refuses_other_models():
             "BoucWen",
             BOUC_WEN | {"beta": -5.0},  # jaxmr's gamma < 0 generates energy
             ValueError,
-            "has no jaxmr counterpart: .*`gamma` must be >= 0",
+            "has no jaxmr counterpart .*`gamma` must be >= 0",
         ),
+        # In OpenSees' names (jaxmr's constructor had named its own `alpha`).
+        (
+            "BoucWen",
+            BOUC_WEN | {"alpha": 1.5},
+            ValueError,
+            r"OpenSees' `alpha` \(the ratio of post-yield to initial stiffness\) "
+            r"must be in \[0, 1\], got 1.5",
+        ),
+        ("BoucWen", BOUC_WEN | {"ko": -1.0}, ValueError, r"OpenSees' `ko` .* > 0"),
     ],
 )
 def test_from_opensees_names_what_is_wrong(material, params, error, match):
