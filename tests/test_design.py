@@ -314,6 +314,16 @@ def test_cli_writes_the_plan_and_never_overwrites(tmp_path, design):
             float(row["test"].split("_")[2][:-2]), rel=1e-9
         )
         assert float(row["duration"]) == pytest.approx(test.duration)
+    # The predicted standard errors, as data: the function's, to the printed digits.
+    with open(out / "errors.csv", newline="") as f:
+        errors = list(csv.DictReader(line for line in f if not line.startswith("#")))
+    assert [r["parameter"] for r in errors] == list(design.names)
+    np.testing.assert_allclose(
+        [float(r["std_error_plan"]) for r in errors], design.std_errors, rtol=1e-9
+    )
+    np.testing.assert_allclose(
+        [float(r["std_error_all"]) for r in errors], design.std_errors_all, rtol=1e-9
+    )
     before = {p.name: p.read_bytes() for p in out.iterdir()}
     status, _, stderr = _run(argv)
     assert status == 1 and "never replaces a file" in stderr

@@ -30,6 +30,10 @@ from .files import (
 )
 
 PLAN = "plan.csv"
+# The predicted standard errors, as data (they were printed only, so a plan could not
+# be archived with them).
+ERRORS = "errors.csv"
+ERROR_COLUMNS = ("parameter", "value", "std_error_plan", "std_error_all")
 PLAN_COLUMNS = ("test", "file", "amplitude", "frequency", "current", "duration")
 # The starts the command's last line advises for the fit of the planned tests.
 ADVISED_STARTS = 4
@@ -46,8 +50,10 @@ def add_parser(subparsers) -> None:
             "D-optimal (largest log det of the Fisher information from the exact "
             "Jacobian), or A-optimal for --parameters. Writes DIR/plan.csv (one row "
             "per test: amplitude [m or rad], frequency [Hz], current [A or V], "
-            "duration [s]) and one canonical CSV per test (motion and input, no "
-            "force), ready to drive a rig. Never replaces an existing file."
+            "duration [s]), DIR/errors.csv (each fitted parameter's predicted "
+            "standard error with the plan and with every candidate) and one "
+            "canonical CSV per test (motion and input, no force), ready to drive a "
+            "rig. Never replaces an existing file."
         ),
     )
     command.add_argument(
@@ -260,8 +266,8 @@ def run(args: argparse.Namespace) -> int:
     taken: set = set()
     files = [_file_name(stem, taken) for stem in stems]
     inputs = [args.model] + list(args.candidates or []) + list(args.already)
-    refuse_inputs([out / PLAN] + [out / f for f in files], inputs)
-    _refuse_existing([out / PLAN])
+    refuse_inputs([out / PLAN, out / ERRORS] + [out / f for f in files], inputs)
+    _refuse_existing([out / PLAN, out / ERRORS])
     created = not out.exists()
     prepare_directory(out)
 
@@ -290,9 +296,10 @@ def run(args: argparse.Namespace) -> int:
     )
 
     chosen = [out / files[k] for k in design.indices]
-    _refuse_existing([out / PLAN] + chosen)
+    _refuse_existing([out / PLAN, out / ERRORS] + chosen)
     rows = design.plan_table()
     write_text(out / PLAN, lambda f: _write_plan(f, design, rows, chosen))
+    write_text(out / ERRORS, lambda f: _write_errors(f, design, args.noise))
     for k, path in zip(design.indices, chosen):
         # The motion and input only: a measured candidate's force is not the plan's.
         # Its discard and smoothing are written (when not 0) for the fit to come.
@@ -303,7 +310,7 @@ def run(args: argparse.Namespace) -> int:
                 e, target, comment="planned by jaxmr design"
             ),
         )
-    print(f"{len(chosen)} test(s) and {PLAN} in {out}")
+    print(f"{len(chosen)} test(s), {PLAN} and {ERRORS} in {out}")
     # A few tests at the ends of the menu can leave a model's parameters two minima
     # apart: on simulated dampers a one-start fit of a 4-test plan stalled in the
     # wrong one on 4 of 10 noise draws, and 4 starts found the right one
@@ -326,6 +333,22 @@ def _refuse_existing(paths) -> None:
             "`jaxmr design` never replaces a file; choose another --out (nothing "
             "was written)"
         )
+
+
+def _write_errors(f, design, noise: float) -> None:
+    """The fitted parameters with their predicted standard errors: with the plan
+    (and any --already tests), and with every candidate."""
+    f.write(
+        f"# jaxmr experiment plan: predicted standard errors ({design.criterion_text}), "
+        f"each in its parameter's unit, for a weighted residual of standard "
+        f"deviation --noise {noise:g} (white): scale them to your rig's noise\n"
+    )
+    writer = csv.writer(f, lineterminator="\n")
+    writer.writerow(ERROR_COLUMNS)
+    for name, value, se, se_all in zip(
+        design.names, design.values, design.std_errors, design.std_errors_all
+    ):
+        writer.writerow([name] + [f"{x:.10g}" for x in (value, se, se_all)])
 
 
 def _write_plan(f, design, rows, paths) -> None:
