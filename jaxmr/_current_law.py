@@ -173,7 +173,7 @@ class TableLaw(AbstractCurrentLaw):
     currents: Float[Array, " table"] = eqx.field(converter=as_float_array)
     values: Float[Array, " table"] = eqx.field(converter=as_parameter)
     # A fit varies the values at the tested currents, never the currents
-    # (`jaxmr._parameter.fixed_fields`).
+    # (`jaxmr._parameter.fixed_by_class`).
     fit_fixed: ClassVar[tuple[str, ...]] = ("currents",)
 
     def __check_init__(self):

@@ -117,63 +117,60 @@ def numbers_as_arrays(tree):
     )
 
 
-def fixed_modes(tree):
-    """`tree` with every parameter that sits at a *mode* of its model `Fixed`: a value
-    that selects a form of the model rather than a size (`fit_modes`, a class
-    attribute mapping field names to such values: Bingham's `velocity_scale` of 0,
-    the exact sign). The force does not change with the parameter there, so a fit
-    could only report it unidentified; a fit leaves it alone instead."""
+def fixed_by_class(tree):
+    """`tree` with the parameters its modules' classes say a fit leaves alone wrapped
+    in `Fixed`:
 
-    def has_modes(x) -> bool:
-        return isinstance(x, eqx.Module) and bool(getattr(type(x), "fit_modes", None))
+    - a parameter at a *mode* of its model (`fit_modes`, a class attribute mapping
+      field names to such values: Bingham's `velocity_scale` of 0, the exact sign):
+      a value that selects a form of the model rather than a size, where the force
+      does not change with it, so that a fit could only report it unidentified;
+    - arrays that place the parameters rather than being ones (`fit_fixed`, a class
+      attribute naming fields: a `TableLaw`'s tested currents). Free, a fit moved a
+      table's currents out of order and off the data."""
 
-    def fix(module):
-        if not has_modes(module):
-            return module
-        for name, mode in type(module).fit_modes.items():
-            value = getattr(module, name)
-            if (
-                eqx.is_array(value)
-                and value.ndim == 0
-                and is_concrete(value)
-                and float(value) == mode
-            ):
-                module = eqx.tree_at(
-                    lambda m, name=name: getattr(m, name), module, Fixed(value)
-                )
-        return module
-
-    return jax.tree.map(fix, tree, is_leaf=has_modes)
-
-
-def fixed_fields(tree):
-    """`tree` with every field a module names in its class attribute `fit_fixed`
-    wrapped in `Fixed`: arrays that place the parameters rather than being ones (a
-    `TableLaw`'s tested currents). Free, a fit moved a table's currents out of
-    order and off the data."""
-
-    def has_fixed(x) -> bool:
-        return isinstance(x, eqx.Module) and bool(getattr(type(x), "fit_fixed", ()))
+    def at_mode(value, mode) -> bool:
+        return (
+            eqx.is_array(value)
+            and value.ndim == 0
+            and is_concrete(value)
+            and float(value) == mode
+        )
 
     def fix(module):
-        if not has_fixed(module):
+        if not isinstance(module, eqx.Module):
             return module
-        for name in type(module).fit_fixed:
-            value = getattr(module, name)
-            if eqx.is_array(value):
-                module = eqx.tree_at(
-                    lambda m, name=name: getattr(m, name), module, Fixed(value)
-                )
+        # The modules inside first (a `TableLaw` in a Bingham model, which has rules
+        # of its own), then this one's fields.
+        module = jax.tree.map(
+            fix, module, is_leaf=lambda x: x is not module and isinstance(x, eqx.Module)
+        )
+        kind = type(module)
+        names = [
+            name
+            for name, mode in getattr(kind, "fit_modes", {}).items()
+            if at_mode(getattr(module, name), mode)
+        ]
+        names += [
+            name
+            for name in getattr(kind, "fit_fixed", ())
+            if eqx.is_array(getattr(module, name))
+        ]
+        for name in names:
+            module = eqx.tree_at(
+                lambda m, name=name: getattr(m, name),
+                module,
+                Fixed(getattr(module, name)),
+            )
         return module
 
-    return jax.tree.map(fix, tree, is_leaf=has_fixed)
+    return jax.tree.map(fix, tree, is_leaf=lambda x: isinstance(x, eqx.Module))
 
 
 def fitted_form(model):
-    """A model as a fit takes it: its plain floats as arrays (`numbers_as_arrays`),
-    its parameters at a mode `Fixed` (`fixed_modes`) and the arrays that only place
-    parameters too (`fixed_fields`)."""
-    return fixed_fields(fixed_modes(numbers_as_arrays(model)))
+    """A model as a fit takes it: its plain floats as arrays (`numbers_as_arrays`)
+    and the parameters its classes leave to the model `Fixed` (`fixed_by_class`)."""
+    return fixed_by_class(numbers_as_arrays(model))
 
 
 def free_filter(tree):

@@ -191,12 +191,12 @@ def _band_narrower_than_error(experiment, predicted, band) -> str | None:
     """Words for a band much narrower than the record's error (after the discarded
     start), or None. A user trial read a ±28 N band beside an RMSE of 185 N in the
     CSV alone, and trusted its edges as bounds on the measurement."""
-    if band is None:
+    from jaxmr.scores import rmse  # imports JAX: not at `jaxmr --help`
+
+    keep = _scored(experiment)
+    if band is None or not np.any(keep):
         return None
-    t = np.asarray(experiment.t)
-    keep = t >= t[0] + experiment.discard
-    measured = np.asarray(experiment.force, float)[keep]
-    error = float(np.sqrt(np.mean((np.asarray(predicted)[keep] - measured) ** 2)))
+    error = rmse(predicted, experiment.force, keep)
     half = float(np.median((np.asarray(band.upper) - np.asarray(band.lower))[keep]) / 2)
     if not (np.isfinite(error) and error > 0 and half < NARROW_BAND * error):
         return None
@@ -210,16 +210,21 @@ def _band_narrower_than_error(experiment, predicted, band) -> str | None:
     )
 
 
+def _scored(experiment) -> np.ndarray:
+    """The samples an error is scored on: after the discarded start."""
+    t = np.asarray(experiment.t)
+    return t >= t[0] + experiment.discard
+
+
 def _prediction_error(path, experiment, predicted) -> str:
     """The line that `predict` prints: RMSE and NRMSE against the measured force after
     the discarded start (`experiment.discard`); the NRMSE (RMSE/std) is undefined for
     a constant force."""
     from jaxmr.scores import nrmse, rmse  # imports JAX: not at `jaxmr --help`
 
-    t, discard = np.asarray(experiment.t), experiment.discard
-    keep = t >= t[0] + discard
+    keep = _scored(experiment)
     if not np.any(keep):
-        return f"{path}: no error: --discard {discard:g} s leaves no sample"
+        return f"{path}: no error: --discard {experiment.discard:g} s leaves no sample"
     force_unit, _ = units(experiment)
     error = f"{path}: RMSE {rmse(predicted, experiment.force, keep):.6g} {force_unit}"
     if not np.std(np.asarray(experiment.force)[keep]) > 0:

@@ -59,7 +59,7 @@ class BinghamDisc(AbstractHysteresis):
     velocity_scale: Float[Array, ""] = eqx.field(converter=as_parameter, default=0.0)
     state_names: ClassVar[tuple[str, ...]] = ()
     # 0 is the exact sign, a form of the model: a fit leaves it there
-    # (`jaxmr._parameter.fixed_modes`).
+    # (`jaxmr._parameter.fixed_by_class`).
     fit_modes: ClassVar[dict[str, float]] = {"velocity_scale": 0.0}
 
     def saturation_induction(self) -> Scalar:
