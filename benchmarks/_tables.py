@@ -646,6 +646,29 @@ TABLES = (
         ),
     ),
     Table(
+        "saturation_choice",
+        "saturation_choice.py",
+        (
+            Row(
+                "num_datasets",
+                "choice datasets (utfsm, nees, draws 1 and 2 of 7 presets)",
+            ),
+            Row("today_max_regret", "former defaults: worst regret"),
+            Row("saturating_max_regret", "with the saturating variants: worst regret"),
+            Row("today_median_regret", "former defaults: median regret"),
+            Row(
+                "saturating_median_regret",
+                "with the saturating variants: median regret",
+            ),
+            Row(
+                "time_factor_equal_load",
+                "auto's median wall time with them over without (runs under equal load)",
+                at_most(2.0, 25),
+            ),
+            Row("adopt_saturating", "the rule adopts them", is_true(25)),
+        ),
+    ),
+    Table(
         "trust_region_choice",
         "trust_region_choice.py",
         (

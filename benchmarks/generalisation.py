@@ -13,9 +13,10 @@ records), this measures:
   training records; its choice, the refitted model's median NRMSE on the held-out
   records, and its wall time (compilation included);
 - `plain`: every candidate of the library's family list (Bingham, Dahl, LuGre,
-  Bouc–Wen, Spencer, shear-thinning Spencer, and the `_lag` variants where the input
-  varies in time) fitted from its template on the training records with `jaxmr fit`'s
-  defaults: loss, steps, verdict, time, median held-out NRMSE;
+  Bouc–Wen, Spencer, shear-thinning Spencer, the `_lag` variants where the input
+  varies in time, and the `_saturating` variants with 3 or more input levels) fitted
+  from its template on the training records with `jaxmr fit`'s defaults: loss,
+  steps, verdict, time, median held-out NRMSE;
 - `regret` = (auto's held-out NRMSE) / (the best plain candidate's) − 1, and over the
   datasets `max_regret` and `median_regret` (goal: ≤ 10 % and ≤ 3 %);
 - `cv`: inside the training records only, two folds (`levels`: `holdout_split`, what
@@ -46,7 +47,15 @@ them). `datasets_used_in_choice` lists the datasets the selection defaults were
 chosen on (`_generalisation_data.CHOICE_DRAWS` and the real ones), `fresh_datasets`
 the others, with their own `fresh_max_regret` and `fresh_median_regret`.
 `--plain-only` fits only the plain candidates (the yardstick `screening_choice.py`
-reads).
+reads). `--auto-candidates today|saturating` runs the selection with the candidates of
+before session 29 or with the saturating variants (the options of
+`saturation_choice_rule.md`, scored by `saturation_choice.py`).
+
+The headline of 2026-11-28 (session 29): the seven presets' draw 4 (`FRESH_DRAW`,
+its seed drawn after the saturating candidates were adopted), each in a process of
+its own, and `utfsm` and `nees` from the choice runs of `saturation_choice.py` (the
+same code and defaults: the `saturating` selection with the `today` run's plain
+fits), merged with `--analyse`.
 """
 
 import argparse
@@ -90,6 +99,7 @@ from jaxmr._identify.templates import (  # noqa: E402
     MODEL_TEMPLATES,
     default_candidates,
     input_varies_in_time,
+    saturating_candidates,
 )
 
 # `jaxmr fit`'s defaults (jaxmr/_cli.py: --max-steps, --finalists, --starts).
@@ -103,15 +113,32 @@ QUICK_DATASETS = ("sim_review_quarter_car_damper", "utfsm")
 
 
 def family_list(experiments) -> list[str]:
+    """The yardstick's candidates: every family, the `_lag` variants where the
+    input varies, and the `_saturating` variants with 3 or more input levels."""
     names = list(FAMILIES)
     if input_varies_in_time(experiments):
         names += list(LAGGED)
+    return names + saturating_candidates(experiments)
+
+
+# The candidate sets `--auto-candidates` compares (saturation_choice_rule.md):
+# `default`, the library's; `today`, the library's before session 29 (every family,
+# the `_lag` variants where the input varies); `saturating`, those and the
+# `_saturating` variants with 3 or more input levels.
+AUTO_SETS = ("default", "today", "saturating")
+
+
+def auto_candidates(experiments, which: str = "default") -> list[str]:
+    """The candidates of the selection for these records: `jaxmr fit`'s defaults,
+    or one of the sets of `AUTO_SETS`."""
+    if which == "default":
+        return default_candidates(experiments)
+    names = list(FAMILIES)
+    if input_varies_in_time(experiments):
+        names += list(LAGGED)
+    if which == "saturating":
+        names += saturating_candidates(experiments)
     return names
-
-
-def auto_candidates(experiments) -> list[str]:
-    """`jaxmr fit`'s default candidates for these records (the library's)."""
-    return default_candidates(experiments)
 
 
 def _scores(model, records, discard, smoothing) -> list[float]:
@@ -148,10 +175,11 @@ def _summary(result, seconds) -> dict:
     }
 
 
-def run_auto(d, max_steps, starts=AUTO_STARTS) -> dict:
+def run_auto(d, max_steps, starts=AUTO_STARTS, which="default") -> dict:
     """`jaxmr fit --model auto` on the training records (`_select`'s call), with
-    its default starts per fit unless `starts` says otherwise."""
-    candidates = auto_candidates(d.train)
+    its default starts per fit unless `starts` says otherwise, and its default
+    candidates unless `which` (`AUTO_SETS`) says otherwise."""
+    candidates = auto_candidates(d.train, which)
     lines = []
     start = time.perf_counter()
     selection = select_model(
@@ -284,7 +312,7 @@ def run_dataset(d, args) -> dict:
     )
     out = {"summary": d.summary()}
     if not args.plain_only:
-        out["auto"] = run_auto(d, args.max_steps, args.starts)
+        out["auto"] = run_auto(d, args.max_steps, args.starts, args.auto_candidates)
     if args.auto_only:
         return out
     names = family_list(d.train)
@@ -322,9 +350,9 @@ def run_cv_dataset(d, out, args) -> None:
 
 
 def _complexity(name: str) -> tuple:
-    """The parsimony order: family (simplest first), then no lag before lag."""
-    base = name.removesuffix("_lag")
-    return (FAMILIES.index(base), name.endswith("_lag"))
+    """The parsimony order: family (simplest first), then no lag before lag, then
+    straight laws before saturating ones (the library's order)."""
+    return _select_complexity(name)
 
 
 def _cv_table(result, fold_scheme, stage):
@@ -684,7 +712,7 @@ def _run_separately(args) -> None:
         )
     )
     options = [f"--max-steps={args.max_steps}", f"--screen-steps={args.screen_steps}"]
-    options += [f"--starts={args.starts}"]
+    options += [f"--starts={args.starts}", f"--auto-candidates={args.auto_candidates}"]
     options += [flag for flag in ("quick", "small", "no_cv") if getattr(args, flag)]
     options = [o if o.startswith("--") else "--" + o.replace("_", "-") for o in options]
     with tempfile.TemporaryDirectory() as folder:
@@ -730,6 +758,13 @@ def main():
         type=int,
         default=AUTO_STARTS,
         help="starts per fit of the selection (default: jaxmr fit's)",
+    )
+    parser.add_argument(
+        "--auto-candidates",
+        choices=AUTO_SETS,
+        default="default",
+        help="the selection's candidates (default: jaxmr fit's); `today` and "
+        "`saturating` are the options of saturation_choice_rule.md",
     )
     parser.add_argument("--max-steps", type=int, default=MAX_STEPS)
     parser.add_argument("--screen-steps", type=int, default=SCREEN_STEPS)
@@ -778,6 +813,7 @@ def main():
         "screen_steps": args.screen_steps,
         "finalists": FINALISTS,
         "auto_candidates": list(AUTO_CANDIDATES),
+        "auto_candidate_set": args.auto_candidates,
         "seed": gd.SEED,
         "draw_seeds": list(gd.DRAW_SEEDS),
         "noise": {

@@ -97,8 +97,9 @@ def add_parser(subparsers) -> None:
         help=(
             "with --model auto: the comma-separated models to choose from (default: "
             "one of each family, bingham, dahl, lugre, bouc_wen, spencer, "
-            "shear_thinning_spencer, and the _lag variants of the last three when the "
-            "input varies within a file: jaxmr.templates.default_candidates)"
+            "shear_thinning_spencer, the _lag variants of the last three when the "
+            "input varies within a file, and the _saturating variants with 3 or more "
+            "input levels: jaxmr.templates.default_candidates)"
         ),
     )
     command.add_argument(

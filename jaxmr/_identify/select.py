@@ -532,7 +532,13 @@ def compare_models(
 
     failed, scores = [], []
     screening = finalists is not None
-    for name, build in _candidates(names_or_models, train):
+    candidates = _candidates(names_or_models, train)
+    twins, built = _twins(candidates)
+    for name, build in candidates:
+        if name in twins:
+            continue  # fitted once, as the candidate it repeats (below)
+        if name in built:  # built once
+            build = lambda m=built[name]: m  # noqa: E731
         kwargs = dict(fit_kwargs)
         if screening:
             kwargs["max_steps"] = min(screen_steps, kwargs.get("max_steps", 200))
@@ -591,10 +597,22 @@ def compare_models(
         if result.interrupted:
             return sorted(scores, key=lambda s: s.median_test_nrmse) + failed
     scores.sort(key=lambda s: s.median_test_nrmse)
+
+    def twin_of(score, name):  # a twin's copy: the same fit, at no cost
+        zero = lambda t: None if t is None else 0.0  # noqa: E731
+        return dataclasses.replace(
+            score,
+            name=name,
+            fit_time=0.0,
+            screening_time=zero(score.screening_time),
+            full_time=zero(score.full_time),
+        )
+
+    failed = _with_twins(failed, twins, twin_of)
     if not screening:
-        return scores + failed
+        return _with_twins(scores, twins, twin_of) + failed
     # Every candidate within SCREEN_KEEP_RATIO of the best screened score, and at
-    # least `finalists` of them.
+    # least `finalists` of them (a twin goes with the one it repeats).
     best_screened = scores[0].median_test_nrmse if scores else np.inf
     close = sum(
         1 for s in scores if s.median_test_nrmse <= SCREEN_KEEP_RATIO * best_screened
@@ -645,8 +663,52 @@ def compare_models(
         final.append(score)
         if result.interrupted:
             break
+    final = _with_twins(final, twins, twin_of)
     final.sort(key=lambda s: (s.stage != "full", s.median_test_nrmse))
-    return final + scores[finalists:] + failed
+    return final + _with_twins(scores[finalists:], twins, twin_of) + failed
+
+
+def _twins(candidates) -> tuple[dict[str, str], dict[str, Any]]:
+    """`(twins, built)`: the candidates whose initial model is the same as an
+    earlier one's (a `_saturating` template's on data of fewer than 3 input levels,
+    which is its straight template's), as {twin: the earlier candidate}, and the
+    others' initial models by name (each template built once). A twin is not
+    fitted: it takes the earlier one's fit and scores, and goes to the finalists
+    with it, so that `select_model` fits it for itself on the folds where it
+    differs."""
+    built: dict[str, Any] = {}
+    twins = {}
+    for name, build in candidates:
+        try:
+            model = build()
+        except _FIT_FAILURES as e:
+            if isinstance(e, _CODE_ERRORS):
+                raise
+            continue  # its own fit reports the failure
+        same = next(
+            (other for other, m in built.items() if _same_model(model, m)), None
+        )
+        if same is not None:
+            twins[name] = same
+        else:
+            built[name] = model
+    return twins, built
+
+
+def _same_model(a, b) -> bool:
+    """Whether two initial models are the same (structure, constraints, values)."""
+    if type(a) is not type(b) or not isinstance(a, eqx.Module):
+        return False
+    return bool(eqx.tree_equal(a, b))
+
+
+def _with_twins(scores, twins, twin_of) -> list:
+    """`scores` with a copy of each one's twins' (renamed) after it."""
+    out = []
+    for score in scores:
+        out.append(score)
+        out += [twin_of(score, t) for t, same in twins.items() if same == score.name]
+    return out
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -854,15 +916,18 @@ def holdout_split(experiments: Sequence, *, indices: bool = False):
     return train, test, score_from, fold.description
 
 
-def _complexity(name: str) -> tuple[int, bool]:
+def _complexity(name: str) -> tuple[int, bool, bool]:
     """The place of a candidate in the parsimony order: the family's position in
     `DEFAULT_CANDIDATES` (simplest first; an unknown one after them), then without
-    an input lag before with one."""
+    an input lag before with one, then straight current laws before saturating
+    ones (`_saturating`)."""
     base = str(name).split(" (")[0].split(" + ")[0]
+    saturating = base.endswith("_saturating")
+    base = base.removesuffix("_saturating")
     lag = base.endswith("_lag")
     base = base.removesuffix("_lag")
     order = list(DEFAULT_CANDIDATES)
-    return (order.index(base) if base in order else len(order), lag)
+    return (order.index(base) if base in order else len(order), lag, saturating)
 
 
 # The selection rule. The margin was chosen by leave-one-dataset-out over seven

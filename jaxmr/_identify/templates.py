@@ -449,10 +449,22 @@ def with_lag(template: Callable[[Sequence], AbstractHysteresis]):
 # (3 (1 - e^(-1/3)) = 0.85 of it at the largest), and the fit bends it as far as the
 # data ask.
 SATURATION_START = 3.0
+# With two input levels (a default candidate on a cross-validation fold that holds
+# the middle one of three out), a saturating law's input scale cannot be fitted: it
+# is fixed at SATURATION_PRIOR × the largest input, the law through the template's
+# values at zero and at the largest input. A physical prior, not a fitted value: a
+# damper driven to its rated input gets about 86 % of the way to its saturated
+# force (1 - e^-2), so the fold tests whether the force bends as an MR damper's
+# typically does, against the straight law's interpolation. (Chosen before any run:
+# saturation_choice_rule.md.)
+SATURATION_PRIOR = 0.5
 
 
 def with_saturation(
-    template: Callable[[Sequence], AbstractHysteresis | Damper], fields: Sequence[str]
+    template: Callable[[Sequence], AbstractHysteresis | Damper],
+    fields: Sequence[str],
+    *,
+    strict: bool = True,
 ):
     """A template whose linear current laws in `fields` (names of the hysteresis
     model's parameters, e.g. `("alpha",)` for a Bouc–Wen or Spencer model's
@@ -460,16 +472,22 @@ def with_saturation(
     becomes a `SaturatingLaw` with the template's value and slope at zero input and a
     free input scale i0 started at `SATURATION_START` × the largest input (nearly the
     line). For a damper whose force levels off with current; it needs 3 or more
-    input levels (3 parameters per law). Only the laws named: a law the data show
-    straight (a viscous coefficient, often) would have an undetermined i0."""
+    input levels (3 parameters per law): with fewer, `strict=True` raises, and
+    `strict=False` (the default candidates `*_saturating`) fixes i0 at
+    `SATURATION_PRIOR` × the largest input with 2 levels (a fold that holds one of
+    3 out) and gives the template's model unchanged with 1. Only the laws named:
+    a law the data show straight (a viscous coefficient, often) would have an
+    undetermined i0."""
     fields = (fields,) if isinstance(fields, str) else tuple(fields)
     if not fields:
         raise ValueError("with_saturation: name at least one field, e.g. ('alpha',).")
 
     def saturating(experiments: Sequence):
         experiments = experiment_list(experiments)
-        levels = {round(float(np.mean(np.asarray(e.current))), 9) for e in experiments}
-        if len(levels) < 3:
+        levels = input_levels(experiments)
+        if len(levels) < 2 and not strict:
+            return template(experiments)
+        if len(levels) < 3 and strict:
             raise ValueError(
                 f"with_saturation: a saturating law has 3 parameters and the "
                 f"experiments have {len(levels)} input level(s); give 3 or more."
@@ -485,7 +503,12 @@ def with_saturation(
                     f"{type(inner).__name__} is not a linear law with a free slope "
                     f"(got {type(law).__name__}); name a field that is."
                 )
-            bent = SaturatingLaw(law.a, law.b, Positive(SATURATION_START * top))
+            if len(levels) >= 3:
+                bent = SaturatingLaw(law.a, law.b, Positive(SATURATION_START * top))
+            else:  # the prior's input scale, through the line's value at the top
+                i0 = SATURATION_PRIOR * top
+                slope = float(law.b.value()) * top / (i0 * -np.expm1(-top / i0))
+                bent = SaturatingLaw(law.a, Positive(slope), Fixed(i0))
             inner = eqx.tree_at(lambda m, f=field: getattr(m, f), inner, bent)
         if isinstance(model, Damper):
             return eqx.tree_at(lambda d: d.hysteresis, model, inner)
@@ -527,6 +550,30 @@ def with_channel_delay(template: Callable[[Sequence], AbstractHysteresis | Dampe
     return delayed
 
 
+def input_levels(experiments: Sequence) -> list[float]:
+    """The distinct input levels [A or V] of these experiments (each one's mean
+    input, to 9 decimals), sorted: what `cv_folds` holds out and a saturating law
+    needs 3 of."""
+    return sorted(
+        {round(float(np.mean(np.asarray(e.current))), 9) for e in experiments}
+    )
+
+
+def saturating_candidates(experiments: Sequence) -> list[str]:
+    """The `_saturating` variants (`SATURATING_FIELDS`) that apply to these
+    experiments: none with fewer than 3 input levels, the `_lag` ones only where
+    the input varies within an experiment."""
+    experiments = experiment_list(experiments)
+    if len(input_levels(experiments)) < 3:
+        return []
+    varies = input_varies_in_time(experiments)
+    return [
+        f"{name}_saturating"
+        for name in SATURATING_FIELDS
+        if varies or not name.endswith("_lag")
+    ]
+
+
 def input_varies_in_time(experiments: Sequence) -> bool:
     """Whether the input changes within an experiment (not only between them)."""
     for e in experiments:
@@ -563,16 +610,37 @@ variants behind a fitted first-order input lag (see `default_candidates`)."""
 def default_candidates(experiments: Sequence) -> list[str]:
     """The default candidates (template names) of `jaxmr.select_model` and `jaxmr fit
     --model auto` for these experiments: `DEFAULT_CANDIDATES` (Bingham, Dahl, LuGre,
-    Bouc–Wen, Spencer, shear-thinning Spencer, simplest first), and their `_lag`
-    variants (`DEFAULT_LAG_CANDIDATES`) when `input_varies_in_time`.
+    Bouc–Wen, Spencer, shear-thinning Spencer, simplest first), their `_lag`
+    variants (`DEFAULT_LAG_CANDIDATES`) when `input_varies_in_time`, and with 3 or
+    more input levels the `_saturating` variants (`saturating_candidates`).
 
-    Chosen from a six-dataset table of held-out NRMSE (benchmarks/README.md,
-    "generalisation"), not yet by a finished leave-one-dataset-out."""
+    The families were chosen from a six-dataset table of held-out NRMSE
+    (benchmarks/README.md, "generalisation"), not by a finished
+    leave-one-dataset-out; the saturating variants joined by the rule of
+    benchmarks/saturation_choice_rule.md, on 16 datasets (session 29: the former
+    defaults' worst regret 4.85 on two dampers whose force levels off, 0.23 with
+    them)."""
     names: list[str] = list(DEFAULT_CANDIDATES)
     if input_varies_in_time(experiments):
         names += list(DEFAULT_LAG_CANDIDATES)
-    return names
+    return names + saturating_candidates(experiments)
 
+
+# The force-level laws of each family that its `_saturating` variant bends
+# (`with_saturation`): the hysteretic force (Bouc–Wen's and Spencer's alpha, Dahl's
+# k_w) or the friction levels (LuGre's F_c and F_s). Bingham has none that the
+# others lack (its yield force is a function of the velocity alone), and the
+# shear-thinning Spencer's alpha is already curved (a quadratic).
+SATURATING_FIELDS = {
+    "dahl": ("k_w",),
+    "lugre": ("F_c", "F_s"),
+    "bouc_wen": ("alpha",),
+    "spencer": ("alpha",),
+    "bouc_wen_lag": ("alpha",),
+    "spencer_lag": ("alpha",),
+}
+"""The templates with a `_saturating` variant in `MODEL_TEMPLATES` (`bouc_wen_saturating`
+is `with_saturation(bouc_wen, ("alpha",), strict=False)`), and the laws each bends."""
 
 MODEL_TEMPLATES: dict[str, Callable[[Sequence], AbstractHysteresis | Damper]] = {
     "bingham": bingham,
@@ -586,5 +654,13 @@ MODEL_TEMPLATES: dict[str, Callable[[Sequence], AbstractHysteresis | Damper]] = 
     "spencer_lag": with_lag(spencer),
     "shear_thinning_spencer_lag": with_lag(shear_thinning_spencer),
 }
+MODEL_TEMPLATES.update(
+    {
+        f"{name}_saturating": with_saturation(
+            MODEL_TEMPLATES[name], fields, strict=False
+        )
+        for name, fields in SATURATING_FIELDS.items()
+    }
+)
 """Model templates by name: `MODEL_TEMPLATES[name](experiments)` is a constrained
 initial guess for `jaxmr.fit`, scaled from the experiments."""

@@ -1,0 +1,99 @@
+"""Should `jaxmr fit --model auto` try saturating current laws? The rule of
+`saturation_choice_rule.md` (written before the runs), applied to the runs of
+`generalisation.py` on its 16 choice datasets (issue 25, item 1).
+
+Each dataset was run twice, each in a process of its own:
+
+    python benchmarks/generalisation.py --small --no-cv --max-steps 100 \
+        --auto-candidates today --datasets D --json TODAY/D.json
+    python benchmarks/generalisation.py --small --no-cv --max-steps 100 \
+        --auto-only --auto-candidates saturating --datasets D --json SAT/D.json
+
+(the first also fits every plain candidate, the yardstick: every family, lag and
+saturating variant), for D in `_generalisation_data.dataset_names(CHOICE_DRAWS)`.
+This script reads the two folders and writes the rule's figures:
+
+    python benchmarks/saturation_choice.py --today TODAY --saturating SAT \
+        --json benchmarks/results/saturation_choice.json
+
+`--alone` names the datasets whose wall times were measured under unequal load (the
+rule's addendum), left out of criterion 3.
+"""
+
+import argparse
+import json
+from pathlib import Path
+
+import numpy as np
+from _report import write_figures
+
+# The rule (saturation_choice_rule.md).
+MAX_REGRET_GAIN = 0.02
+MEDIAN_REGRET_SLACK = 0.01
+TIME_FACTOR = 2.0
+
+
+def _auto(path: Path, name: str) -> dict:
+    return json.loads(path.read_text())["datasets"][name]
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--today", type=Path, required=True)
+    parser.add_argument("--saturating", type=Path, required=True)
+    parser.add_argument("--alone", default="", help="comma-separated dataset names")
+    parser.add_argument("--json", type=Path)
+    args = parser.parse_args()
+    alone = set(filter(None, args.alone.split(",")))
+    table = {}
+    for path in sorted(args.today.glob("*.json")):
+        name = path.stem
+        today = _auto(path, name)
+        saturating = _auto(args.saturating / path.name, name)["auto"]
+        best = today["best_held_out_median_nrmse"]
+        table[name] = {
+            "best": today["best"],
+            "best_held_out": best,
+            "plain": {c: p["held_out_median_nrmse"] for c, p in today["plain"].items()},
+            **{
+                f"{label}_{key}": value
+                for label, auto in (
+                    ("today", today["auto"]),
+                    ("saturating", saturating),
+                )
+                for key, value in (
+                    ("choice", auto["choice"]),
+                    ("held_out", auto["held_out_median_nrmse"]),
+                    ("regret", auto["held_out_median_nrmse"] / best - 1),
+                    ("seconds", auto["seconds"]),
+                )
+            },
+            "equal_load": name not in alone,
+        }
+    rows = list(table.values())
+    figures = {"datasets": table, "num_datasets": len(rows)}
+    for label in ("today", "saturating"):
+        regrets = [r[f"{label}_regret"] for r in rows]
+        figures[f"{label}_max_regret"] = max(regrets)
+        figures[f"{label}_median_regret"] = float(np.median(regrets))
+        figures[f"{label}_median_seconds_equal_load"] = float(
+            np.median([r[f"{label}_seconds"] for r in rows if r["equal_load"]])
+        )
+    figures["time_factor_equal_load"] = (
+        figures["saturating_median_seconds_equal_load"]
+        / figures["today_median_seconds_equal_load"]
+    )
+    criteria = {
+        "max_regret_lower_by_0.02": figures["saturating_max_regret"]
+        <= figures["today_max_regret"] - MAX_REGRET_GAIN,
+        "median_regret_at_most_0.01_higher": figures["saturating_median_regret"]
+        <= figures["today_median_regret"] + MEDIAN_REGRET_SLACK,
+        "time_at_most_2x": figures["time_factor_equal_load"] <= TIME_FACTOR,
+    }
+    figures["criteria"] = criteria
+    figures["adopt_saturating"] = all(criteria.values())
+    write_figures(figures, args.json)
+
+
+if __name__ == "__main__":
+    main()
