@@ -119,6 +119,7 @@ BENCHMARKS = (
     Benchmark("realistic_control", "realistic_control.py"),
     Benchmark("export_c", "export_c.py"),
     Benchmark("held_out_currents", "held_out_currents.py"),
+    Benchmark("saturation_choice", "saturation_choice.py"),
     Benchmark("screening_choice", "screening_choice.py"),
     Benchmark(
         "starts_choice", "starts_choice.py", quick=("--datasets", "sim_sas_brake_dahl")

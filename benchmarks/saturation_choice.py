@@ -11,10 +11,17 @@ Each dataset was run twice, each in a process of its own:
 
 (the first also fits every plain candidate, the yardstick: every family, lag and
 saturating variant), for D in `_generalisation_data.dataset_names(CHOICE_DRAWS)`.
-This script reads the two folders and writes the rule's figures:
+Without `--today` and `--saturating` this script runs them itself, one after the
+other in a temporary folder (about 1.5 hours on 2 idle cores; `--quick`: one dataset
+with generalisation.py's `--quick`), then writes the rule's figures; with them it
+reads the two folders of an earlier run:
 
+    python benchmarks/saturation_choice.py --json benchmarks/results/saturation_choice.json
     python benchmarks/saturation_choice.py --today TODAY --saturating SAT \
         --json benchmarks/results/saturation_choice.json
+
+The figures of results/saturation_choice.json are from the second form: session 29's
+runs, two processes at a time for most of them (see `--alone`).
 
 `--alone` names the datasets whose wall times were measured under unequal load (the
 rule's addendum), left out of criterion 3.
@@ -22,6 +29,9 @@ rule's addendum), left out of criterion 3.
 
 import argparse
 import json
+import subprocess
+import sys
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -37,14 +47,46 @@ def _auto(path: Path, name: str) -> dict:
     return json.loads(path.read_text())["datasets"][name]
 
 
+HERE = Path(__file__).resolve().parent
+RUN = ("--small", "--no-cv", "--max-steps", "100")
+
+
+def run(datasets, folder: Path, quick: bool) -> tuple[Path, Path]:
+    """Both options' runs of `generalisation.py` on `datasets`, one process each,
+    into `folder`/today and `folder`/saturating."""
+    today, saturating = folder / "today", folder / "saturating"
+    options = ("--quick", "--no-cv") if quick else RUN
+    for name in datasets:
+        for out, extra in (
+            (today, ("--auto-candidates", "today")),
+            (saturating, ("--auto-only", "--auto-candidates", "saturating")),
+        ):
+            out.mkdir(parents=True, exist_ok=True)
+            command = [sys.executable, str(HERE / "generalisation.py"), *options]
+            command += [*extra, "--datasets", name, "--json", str(out / f"{name}.json")]
+            subprocess.run(command, check=True)
+    return today, saturating
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--today", type=Path, required=True)
-    parser.add_argument("--saturating", type=Path, required=True)
+    parser.add_argument("--today", type=Path, help="the `today` runs' folder")
+    parser.add_argument("--saturating", type=Path, help="the `saturating` runs'")
     parser.add_argument("--alone", default="", help="comma-separated dataset names")
+    parser.add_argument("--quick", action="store_true", help="a smoke run")
     parser.add_argument("--json", type=Path)
     args = parser.parse_args()
     alone = set(filter(None, args.alone.split(",")))
+    if (args.today is None) != (args.saturating is None):
+        parser.error("give both --today and --saturating, or neither (to run them)")
+    if args.today is None:
+        import _generalisation_data as gd
+
+        names = (
+            ["sim_sas_brake_dahl"] if args.quick else gd.dataset_names(gd.CHOICE_DRAWS)
+        )
+        folder = Path(tempfile.mkdtemp(prefix="saturation_choice_"))
+        args.today, args.saturating = run(names, folder, args.quick)
     table = {}
     for path in sorted(args.today.glob("*.json")):
         name = path.stem

@@ -56,6 +56,12 @@ TEMPLATE_NAMES = (
     "bouc_wen_lag",
     "spencer_lag",
     "shear_thinning_spencer_lag",
+    "dahl_saturating",
+    "lugre_saturating",
+    "bouc_wen_saturating",
+    "spencer_saturating",
+    "bouc_wen_lag_saturating",
+    "spencer_lag_saturating",
 )
 
 
