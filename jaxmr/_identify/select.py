@@ -19,7 +19,12 @@ from .data import experiment_list, per_experiment
 from .fitting import fit
 from .result import FitResult, StopReason
 from .score import nrmse, predict_all, rmse
-from .templates import DEFAULT_CANDIDATES, MODEL_TEMPLATES, default_candidates
+from .templates import (
+    DEFAULT_CANDIDATES,
+    MODEL_TEMPLATES,
+    default_candidates,
+    input_levels,
+)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -827,7 +832,7 @@ def cv_folds(experiments: Sequence) -> list[Fold]:
     n = len(experiments)
     names = [str(getattr(e, "name", "")) for e in experiments]
     levels = [float(np.mean(np.asarray(e.current))) for e in experiments]
-    distinct = sorted(set(np.round(levels, 9)))
+    distinct = input_levels(experiments)  # what a saturating law counts, too
     folds: list[Fold] = []
 
     def held_out(kind, held, what):
