@@ -1,6 +1,7 @@
 """Running a benchmark's measurement in fresh processes: N local processes with
 `jax.distributed` (CPU, gloo collectives, one device per process), the launcher and
-the worker's start; and `jaxmr fit` as a user runs it (`fit_command`).
+the worker's start; `jaxmr fit` as a user runs it (`fit_command`); and the runs of
+`generalisation.py` a choice between options reads (`generalisation_runs`).
 
 A benchmark script that supports `--processes N` re-runs itself as N workers
 (`--worker K --port P --out FILE`); process 0 saves its figures to FILE (.npz)."""
@@ -11,6 +12,7 @@ import socket
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 
 def fit_command(files, out, *options, quiet: bool = True) -> float:
@@ -32,6 +34,24 @@ def fit_command(files, out, *options, quiet: bool = True) -> float:
         stdout=subprocess.DEVNULL if quiet else None,
     )
     return time.perf_counter() - start
+
+
+# The settings of the generalisation headline (and of every choice scored on it).
+GENERALISATION_RUN = ("--small", "--no-cv", "--max-steps", "100")
+
+
+def generalisation_runs(datasets, options: dict, quick: bool = False) -> None:
+    """`generalisation.py` on each of `datasets` under each option, one process
+    each: `options` maps a folder to the option's extra arguments, and each run
+    writes `folder/<dataset>.json` (`quick`: generalisation.py's `--quick`)."""
+    script = Path(__file__).resolve().parent / "generalisation.py"
+    common = ("--quick", "--no-cv") if quick else GENERALISATION_RUN
+    for name in datasets:
+        for folder, extra in options.items():
+            folder.mkdir(parents=True, exist_ok=True)
+            command = [sys.executable, str(script), *common, *extra]
+            command += ["--datasets", name, "--json", str(folder / f"{name}.json")]
+            subprocess.run(command, check=True)
 
 
 def free_port() -> int:

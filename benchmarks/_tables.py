@@ -669,6 +669,26 @@ TABLES = (
         ),
     ),
     Table(
+        "screening_folds_choice",
+        "screening_folds_choice.py",
+        (
+            Row(
+                "num_datasets",
+                "choice datasets (utfsm, nees, draws 2 and 4 of 7 presets)",
+            ),
+            Row("first_max_regret", "screened on the first fold: worst regret"),
+            Row("every_max_regret", "screened on every fold: worst regret"),
+            Row("first_median_regret", "screened on the first fold: median regret"),
+            Row("every_median_regret", "screened on every fold: median regret"),
+            Row(
+                "time_factor",
+                "auto's median wall time, every fold over the first",
+                at_most(2.0, 25),
+            ),
+            Row("adopt_every", "the rule adopts screening on every fold"),
+        ),
+    ),
+    Table(
         "trust_region_choice",
         "trust_region_choice.py",
         (

@@ -43,19 +43,22 @@ others, fewer steps). The JSON is rewritten after every dataset, so a long run c
 read while it goes on; `--analyse FILE` re-runs only the analysis on a written JSON.
 The seeds of the simulated noise are `_generalisation_data.DRAW_SEEDS`, one per
 draw (`sim_<preset>` is draw 1, `sim_<preset>@2` draw 2, ...; `--datasets` names
-them). `datasets_used_in_choice` lists the datasets the selection defaults were
-chosen on (`_generalisation_data.CHOICE_DRAWS` and the real ones), `fresh_datasets`
-the others, with their own `fresh_max_regret` and `fresh_median_regret`.
+them). `datasets_used_in_choice` lists the datasets seen before the defaults were
+frozen (the real ones and every draw before `_generalisation_data.FRESH_DRAW`),
+`fresh_datasets` the others, with their own `fresh_max_regret` and
+`fresh_median_regret`.
 `--plain-only` fits only the plain candidates (the yardstick `screening_choice.py`
 reads). `--auto-candidates today|saturating` runs the selection with the candidates of
 before session 29 or with the saturating variants (the options of
-`saturation_choice_rule.md`, scored by `saturation_choice.py`).
+`saturation_choice_rule.md`, scored by `saturation_choice.py`). `--screen-folds
+every|first` screens the selection's candidates on every fold or on the first
+(the options of `screening_folds_rule.md`, scored by `screening_folds_choice.py`).
 
-The headline of 2026-11-28 (session 29): the seven presets' draw 4 (`FRESH_DRAW`,
-its seed drawn after the saturating candidates were adopted), each in a process of
-its own, and `utfsm` and `nees` from the choice runs of `saturation_choice.py` (the
-same code and defaults: the `saturating` selection with the `today` run's plain
-fits), merged with `--analyse`.
+The headline of 2026-11-28 (session 30): the seven presets' draw 5 (`FRESH_DRAW`,
+its seed drawn after `screening_folds_rule.md` kept the screening on the first
+fold), each in a process of its own, two at a time, and `utfsm` and `nees` from the
+choice runs of `saturation_choice.py` (the same code and defaults: the `saturating`
+selection with the `today` run's plain fits), merged with `--analyse`.
 """
 
 import argparse
@@ -88,6 +91,7 @@ from jaxmr import fit, record_nrmse  # noqa: E402
 from jaxmr._identify.select import (  # noqa: E402
     AUTO_STARTS,
     MIN_FINALISTS,
+    SCREEN_FOLDS,
     SCREEN_STEPS,
     _complexity as _select_complexity,
     holdout_split,
@@ -175,10 +179,13 @@ def _summary(result, seconds) -> dict:
     }
 
 
-def run_auto(d, max_steps, starts=AUTO_STARTS, which="default") -> dict:
+def run_auto(
+    d, max_steps, starts=AUTO_STARTS, which="default", screen_folds=SCREEN_FOLDS
+) -> dict:
     """`jaxmr fit --model auto` on the training records (`_select`'s call), with
-    its default starts per fit unless `starts` says otherwise, and its default
-    candidates unless `which` (`AUTO_SETS`) says otherwise."""
+    its default starts per fit unless `starts` says otherwise, its default
+    candidates unless `which` (`AUTO_SETS`) says otherwise, and its screening's
+    folds unless `screen_folds` does."""
     candidates = auto_candidates(d.train, which)
     lines = []
     start = time.perf_counter()
@@ -189,6 +196,7 @@ def run_auto(d, max_steps, starts=AUTO_STARTS, which="default") -> dict:
         smoothing=d.train_smoothing,
         finalists=FINALISTS,
         max_steps=max_steps,
+        screen_folds=screen_folds,
         log=lines.append,
         **({"starts": starts} if starts > 1 else {}),
     )
@@ -197,6 +205,7 @@ def run_auto(d, max_steps, starts=AUTO_STARTS, which="default") -> dict:
     out = {
         "candidates": candidates,
         "starts": starts,
+        "screen_folds": screen_folds,
         "choice": selection.name,
         "seconds": seconds,
         "held_out_nrmse": held_out,
@@ -312,7 +321,9 @@ def run_dataset(d, args) -> dict:
     )
     out = {"summary": d.summary()}
     if not args.plain_only:
-        out["auto"] = run_auto(d, args.max_steps, args.starts, args.auto_candidates)
+        out["auto"] = run_auto(
+            d, args.max_steps, args.starts, args.auto_candidates, args.screen_folds
+        )
     if args.auto_only:
         return out
     names = family_list(d.train)
@@ -713,6 +724,7 @@ def _run_separately(args) -> None:
     )
     options = [f"--max-steps={args.max_steps}", f"--screen-steps={args.screen_steps}"]
     options += [f"--starts={args.starts}", f"--auto-candidates={args.auto_candidates}"]
+    options += [f"--screen-folds={args.screen_folds}"]
     options += [flag for flag in ("quick", "small", "no_cv") if getattr(args, flag)]
     options = [o if o.startswith("--") else "--" + o.replace("_", "-") for o in options]
     with tempfile.TemporaryDirectory() as folder:
@@ -769,6 +781,13 @@ def main():
     parser.add_argument("--max-steps", type=int, default=MAX_STEPS)
     parser.add_argument("--screen-steps", type=int, default=SCREEN_STEPS)
     parser.add_argument(
+        "--screen-folds",
+        choices=("every", "first"),
+        default=SCREEN_FOLDS,
+        help="the folds the selection screens every candidate on (default: jaxmr "
+        "fit's); the options of screening_folds_rule.md",
+    )
+    parser.add_argument(
         "--analyse",
         type=Path,
         nargs="+",
@@ -811,6 +830,7 @@ def main():
         "small": args.small,
         "max_steps": args.max_steps,
         "screen_steps": args.screen_steps,
+        "screen_folds": args.screen_folds,
         "finalists": FINALISTS,
         "auto_candidates": list(AUTO_CANDIDATES),
         "auto_candidate_set": args.auto_candidates,

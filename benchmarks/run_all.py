@@ -120,6 +120,7 @@ BENCHMARKS = (
     Benchmark("export_c", "export_c.py"),
     Benchmark("held_out_currents", "held_out_currents.py"),
     Benchmark("saturation_choice", "saturation_choice.py"),
+    Benchmark("screening_folds_choice", "screening_folds_choice.py"),
     Benchmark("screening_choice", "screening_choice.py"),
     Benchmark(
         "starts_choice", "starts_choice.py", quick=("--datasets", "sim_sas_brake_dahl")

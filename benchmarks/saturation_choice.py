@@ -29,12 +29,11 @@ rule's addendum), left out of criterion 3.
 
 import argparse
 import json
-import subprocess
-import sys
 import tempfile
 from pathlib import Path
 
 import numpy as np
+from _processes import generalisation_runs
 from _report import write_figures
 
 # The rule (saturation_choice_rule.md).
@@ -45,27 +44,6 @@ TIME_FACTOR = 2.0
 
 def _auto(path: Path, name: str) -> dict:
     return json.loads(path.read_text())["datasets"][name]
-
-
-HERE = Path(__file__).resolve().parent
-RUN = ("--small", "--no-cv", "--max-steps", "100")
-
-
-def run(datasets, folder: Path, quick: bool) -> tuple[Path, Path]:
-    """Both options' runs of `generalisation.py` on `datasets`, one process each,
-    into `folder`/today and `folder`/saturating."""
-    today, saturating = folder / "today", folder / "saturating"
-    options = ("--quick", "--no-cv") if quick else RUN
-    for name in datasets:
-        for out, extra in (
-            (today, ("--auto-candidates", "today")),
-            (saturating, ("--auto-only", "--auto-candidates", "saturating")),
-        ):
-            out.mkdir(parents=True, exist_ok=True)
-            command = [sys.executable, str(HERE / "generalisation.py"), *options]
-            command += [*extra, "--datasets", name, "--json", str(out / f"{name}.json")]
-            subprocess.run(command, check=True)
-    return today, saturating
 
 
 def main():
@@ -86,7 +64,15 @@ def main():
             ["sim_sas_brake_dahl"] if args.quick else gd.dataset_names(gd.CHOICE_DRAWS)
         )
         folder = Path(tempfile.mkdtemp(prefix="saturation_choice_"))
-        args.today, args.saturating = run(names, folder, args.quick)
+        args.today, args.saturating = folder / "today", folder / "saturating"
+        generalisation_runs(
+            names,
+            {
+                args.today: ("--auto-candidates", "today"),
+                args.saturating: ("--auto-only", "--auto-candidates", "saturating"),
+            },
+            args.quick,
+        )
     table = {}
     for path in sorted(args.today.glob("*.json")):
         name = path.stem

@@ -13,6 +13,7 @@ import jaxmr
 import jaxmr.data
 from jaxmr import FitEnded, FitStarted, predict, predict_all
 from jaxmr._identify.select import (
+    ModelScore,
     compare_models,
     cv_folds,
     fold_data,
@@ -253,7 +254,9 @@ def _refused(train):
     raise ValueError("this template cannot scale to the data")
 
 
-def test_select_model_reports_typed_events_in_order():
+@pytest.mark.parametrize("screen_folds", ["first", "every"])
+def test_select_model_reports_typed_events_in_order(screen_folds):
+    every = screen_folds == "every"
     runs = dahl_runs((4.0, 5.0, 6.0), (3.0, 3.0, 3.0))  # holds out rho=5.0
     P = jaxmr.Positive
     candidates = {
@@ -270,25 +273,36 @@ def test_select_model_reports_typed_events_in_order():
         callback=events.append,
         log=lines.append,
         statistics_refinement=1,
+        screen_folds=screen_folds,
     )
     kinds = [(type(e).__name__, e.name, e.stage) for e in events]
     best = selection.name
+    # Every candidate is screened on the first fold (one held-out record), with
+    # "every" after the second (a time fold: the last third of every record).
     # "far" screens within 1.5x of "dahl" (both reach the noise floor): both are
-    # finalists despite `finalists=1`, fitted on the first fold (one held-out record)
-    # and then on the second (a time fold: the last third of every record).
+    # finalists despite `finalists=1`, fitted on the first fold and then on the
+    # second.
+    screenings = [
+        (kind, name, "screening")
+        for name in ("dahl", "far", "refused")
+        for kind in ("FitStarted", "FitEnded")
+    ]
+    # (the full fits in the order of the screened score, the other fold's in that
+    # of the full fits' score)
+    order = {
+        stage: [e.name for e in events if e.stage == stage][::2]
+        for stage in ("full", "cv")
+    }
+    assert sorted(order["full"]) == sorted(order["cv"]) == ["dahl", "far"]
     both = [
         (kind, name, stage)
         for stage in ("full", "cv")
-        for name in ("dahl", "far")
+        for name in order[stage]
         for kind in ("FitStarted", "FitEnded")
     ]
     assert kinds == [
-        ("FitStarted", "dahl", "screening"),
-        ("FitEnded", "dahl", "screening"),
-        ("FitStarted", "far", "screening"),
-        ("FitEnded", "far", "screening"),
-        ("FitStarted", "refused", "screening"),
-        ("FitEnded", "refused", "screening"),
+        *(screenings if every else []),
+        *screenings,
         *both,
         ("FitStarted", best, "refit"),
         ("FitEnded", best, "refit"),
@@ -296,15 +310,10 @@ def test_select_model_reports_typed_events_in_order():
         ("FitEnded", best, "template"),
     ]
     assert [e.num_experiments for e in events if isinstance(e, FitStarted)] == [
-        2,
-        2,
-        2,
-        2,
-        2,
-        3,
-        3,
-        3,
-        3,
+        *((3, 3, 3) if every else ()),  # the time fold's screening: all three
+        *(2, 2, 2),
+        *(2, 2, 3, 3),
+        *(3, 3),
     ]
     # Both are Dahl models: "dahl" (a known family) is the simpler by the order, and
     # it is chosen when it ties the best median.
@@ -316,7 +325,15 @@ def test_select_model_reports_typed_events_in_order():
         "held out 1 of 3 (every third experiment): rho=5.0; held out the last 33%"
     )
     ended = {(e.name, e.stage): e for e in events if isinstance(e, FitEnded)}
-    failure = ended["refused", "screening"]
+    screened = {  # the second fold's screening ("every"), then the first's
+        name: [
+            e
+            for e in events
+            if isinstance(e, FitEnded) and e.name == name and e.stage == "screening"
+        ]
+        for name in ("dahl", "far", "refused")
+    }
+    failure = ended["refused", "screening"]  # the first fold's (the last)
     assert failure.error == "ValueError: this template cannot scale to the data"
     assert failure.stop is None and not failure.converged
     scores = {s.name: s for s in selection.scores}
@@ -326,9 +343,12 @@ def test_select_model_reports_typed_events_in_order():
             continue
         assert e.seconds > 0 and e.num_steps >= 1 and np.isfinite(e.loss)
         assert isinstance(e.stop, jaxmr.StopReason) and e.error is None
-    # Every timing the events give is the ranking's and the selection's.
+    # Every timing the events give is the ranking's and the selection's: the
+    # screening's is every fold's together.
     for name in ("dahl", "far"):
-        assert scores[name].screening_time == ended[name, "screening"].seconds
+        seconds = [e.seconds for e in screened[name]]
+        assert len(seconds) == (2 if every else 1)
+        assert scores[name].screening_time == pytest.approx(sum(seconds))
     finalist = scores[best]
     assert finalist.stage == "full"
     assert finalist.full_time == ended[best, "full"].seconds
@@ -364,7 +384,24 @@ def test_select_model_reports_typed_events_in_order():
     assert outcome.endswith(finalist.outcome), outcome
     assert finalist.outcome.startswith("converged") == finalist.result.converged
     assert str(selection.result).startswith(f"fit: {selection.result.outcome} (")
-    # `log` gets the lines it always did, made from the same events.
+    # `log` gets a line per fold's screening, and a line before and after each fit,
+    # made from the same events.
+    if every:
+        assert lines[0] == (
+            "fold 2 (held out the last 33% of each experiment's duration): "
+            "screening every candidate"
+        )
+        assert lines[1] == "dahl: screened fit on 3 experiment(s)..."
+        assert lines[5:7] == [
+            "refused: screened fit on 3 experiment(s)...",
+            f"refused: failed after {screened['refused'][0].seconds:.1f} s: "
+            f"{failure.error}",
+        ]
+        assert lines[7] == (
+            "fold 1 (held out 1 of 3 (every third experiment): rho=5.0): screening, "
+            "then the finalists in full"
+        )
+        del lines[:8]  # then the first fold's, as with one fold
     screening = ended["dahl", "screening"]
     assert lines[0] == "dahl: screened fit on 2 experiment(s)..."
     assert lines[1] == (
@@ -376,17 +413,19 @@ def test_select_model_reports_typed_events_in_order():
         "refused: screened fit on 2 experiment(s)...",
         f"refused: failed after {failure.seconds:.1f} s: {failure.error}",
     ]
-    dahl = scores["dahl"]
-    assert lines[6] == "dahl: full fit on 2 experiment(s), from its screening fit..."
+    head, head_cv = order["full"][0], order["cv"][0]
+    first = scores[head]
+    assert lines[6] == f"{head}: full fit on 2 experiment(s), from its screening fit..."
     assert lines[7].startswith(
-        f"dahl: {dahl.full_time:.1f} s "
-        f"({dahl.screening_time + dahl.full_time:.1f} s with its screening), "
+        f"{head}: {first.full_time:.1f} s "
+        f"({first.screening_time + first.full_time:.1f} s with its screening), "
     )
-    assert lines[7].endswith(f"(full); {ended['dahl', 'full'].outcome}")
+    assert lines[7].endswith(f"(full); {ended[head, 'full'].outcome}")
     assert lines[10] == (
-        "dahl: fit on another fold's 3 training experiment(s), from its own start..."
+        f"{head_cv}: fit on another fold's 3 training experiment(s), from its own "
+        "start..."
     )
-    assert lines[11].endswith(f"(other fold); {ended['dahl', 'cv'].outcome}")
+    assert lines[11].endswith(f"(other fold); {ended[head_cv, 'cv'].outcome}")
     assert lines[14] == f"parsimony: {rule.reason}"
     assert (
         lines[15]
@@ -398,6 +437,61 @@ def test_select_model_reports_typed_events_in_order():
     )
     assert lines[18].endswith(f"(template); {ended[best, 'template'].outcome}")
     assert len(lines) == 19
+
+
+def test_finalists_are_chosen_on_every_folds_screening():
+    """Screening ranks on the held-out records of every fold, not the first fold's
+    alone: on one record the first fold can favour a candidate that fails
+    elsewhere (session 29's fresh draw of a saturating damper: LuGre screened best
+    on the first fold's one record, went alone to the finals, failed the time fold
+    and was chosen, 6x worse held out than the best candidate)."""
+    runs = dahl_runs((4.0, 5.0, 6.0), (3.0, 3.0, 3.0))
+    P = jaxmr.Positive
+    candidates = {
+        "dahl": dahl_guess(),
+        "far": jaxmr.Dahl(k_x=P(0.05), k_w=P(1.0), rho=P(20.0)),
+    }
+    train, test = [runs[0], runs[2]], [runs[1]]
+    options = dict(max_steps=6, statistics_refinement=1)
+    alone = compare_models(candidates, train, test, finalists=0, **options)
+    assert [s.stage for s in alone] == ["screened", "screened"]  # no finalist
+    # On this fold alone both are finalists with `finalists=1`: they screen within
+    # 1.5x of each other (see the events test).
+    assert max(s.median_test_nrmse for s in alone) <= 1.5 * min(
+        s.median_test_nrmse for s in alone
+    )
+    # Another fold where "dahl" scored well and "far" failed on both records.
+    names = ("a [fold 2]", "b [fold 2]")
+    elsewhere = [
+        ModelScore(
+            "dahl", None, names, np.full(2, 0.1), np.full(2, 0.01), 2.0, 3,
+            stage="screened", screening_time=2.0,
+        ),
+        ModelScore(
+            "far", None, names, np.full(2, np.nan), np.full(2, np.nan), 1.0, 3,
+            error="RuntimeError: diverged", stage="screened", screening_time=1.0,
+        ),
+    ]  # fmt: skip
+    pooled = compare_models(
+        candidates, train, test, finalists=1, screened=[elsewhere], **options
+    )
+    scores = {s.name: s for s in pooled}
+    assert [s.name for s in pooled if s.stage == "full"] == ["dahl"]
+    far = scores["far"]
+    assert far.stage == "screened" and far.test_names == ("rho=5.0", *names)
+    assert np.isfinite(far.test_nrmse[0]) and np.isinf(far.test_nrmse[1:]).all()
+    assert far.median_test_nrmse == np.inf
+    # Its screening time is both folds' (the first fold's fit is timed anew here).
+    assert far.screening_time > 1.0 and far.fit_time == far.screening_time
+    # The finalist's score is its full fit's, on this fold's records alone.
+    assert scores["dahl"].test_names == ("rho=5.0",)
+    assert scores["dahl"].screening_time > 2.0
+    with pytest.raises(ValueError, match="needs screening"):
+        compare_models(candidates, train, test, finalists=None, screened=[elsewhere])
+    with pytest.raises(ValueError, match=">= 0"):
+        compare_models(candidates, train, test, finalists=-1)
+    with pytest.raises(ValueError, match="screen_folds"):
+        jaxmr.select_model(candidates, runs, screen_folds="all")
 
 
 def test_selected_model_is_never_worse_than_its_template_fitted_alone():

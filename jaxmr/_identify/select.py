@@ -151,8 +151,8 @@ class _LogLines:
                 f"{event.num_steps} steps; {errors} (full); {event.outcome}"
             )
         else:
-            if stage == "screening":
-                self.screening[name] = event.seconds
+            if stage == "screening":  # on every fold: the sum
+                self.screening[name] = self.screening.get(name, 0.0) + event.seconds
             what = {"screening": "screened", "cv": "other fold"}.get(stage, "full")
             self.log(
                 f"{name}: {event.seconds:.1f} s, {event.num_steps} steps, "
@@ -374,6 +374,15 @@ SCREEN_DURATION = 1.0  # s
 SCREEN_STEPS = 100
 SCREEN_KEEP_RATIO = 1.5
 MIN_FINALISTS = 2
+# The folds every candidate of `select_model` is screened on: "first" (the first fold
+# alone) or "every" (the finalists by the screened held-out errors pooled over the
+# folds). Chosen by the rule of benchmarks/screening_folds_rule.md
+# (results/screening_folds_choice.json) on 16 datasets: "every" mended the one where
+# screening on the first fold's single record had sent only LuGre to the finals
+# (regret 6.07 -> 0.11), but broke another the same way round (0.09 -> 7.87: pooled
+# per record, the time fold's 4 records outvoted the held-out level where the
+# shear-thinning Spencer failed), and cost 1.7x the time; the rule kept "first".
+SCREEN_FOLDS = "first"
 # Starts per fit of `jaxmr fit --model auto` (its screening, folds and refits):
 # chosen by `benchmarks/starts_choice.py` on the choice datasets.
 AUTO_STARTS = 1
@@ -415,6 +424,7 @@ def compare_models(
     callback: Callable[[FitStarted | FitEnded], None] | None = None,
     finalists: int | None = MIN_FINALISTS,
     screen_steps: int = SCREEN_STEPS,
+    screened: Sequence[Sequence[ModelScore]] = (),
     discard=None,
     smoothing=None,
     test_smoothing=None,
@@ -454,8 +464,15 @@ def compare_models(
     - `finalists`: the fewest screened candidates fitted on all the data
       (`MIN_FINALISTS`, 2); every candidate whose screened score is within
       `SCREEN_KEEP_RATIO` (1.5) times the best's is too (`None`: no screening,
-      every candidate fitted on all the data).
+      every candidate fitted on all the data; 0: screening only, no finalist).
     - `screen_steps`: the most Levenberg–Marquardt steps of a screening fit.
+    - `screened`: the screenings of the same candidates on other data (other
+      folds: `compare_models(..., finalists=0)` on each), pooled with this one's
+      to choose the finalists: a screened candidate's held-out errors are then its
+      own and theirs together (the other runs' `test_names` as they come; a
+      candidate that failed in one counts its records there as infinite, one
+      missing from it pools nothing), and its `screening_time` the sum.
+      `select_model(..., screen_folds="every")` passes the other folds'.
     - `discard`, `smoothing`: per training experiment (or one for all), as `fit`'s
       (`None`: each experiment's own).
     - `test_smoothing`: the smoothing [s] of the held-out experiments' force (one for
@@ -481,8 +498,10 @@ def compare_models(
                 f"held-out experiment {getattr(e, 'name', '')!r} has no measured force "
                 "to score against."
             )
-    if finalists is not None and finalists < 1:
-        raise ValueError(f"`finalists` must be >= 1 or None, got {finalists}.")
+    if finalists is not None and finalists < 0:
+        raise ValueError(f"`finalists` must be >= 0 or None, got {finalists}.")
+    if screened and finalists is None:
+        raise ValueError("`screened` needs screening: `finalists` is None.")
     if score_from is None:
         score_from = [
             float(np.asarray(e.t)[0]) + d
@@ -601,6 +620,7 @@ def compare_models(
         scores.append(score)
         if result.interrupted:
             return sorted(scores, key=lambda s: s.median_test_nrmse) + failed
+    scores = [_pooled(s, screened) for s in scores]
     scores.sort(key=lambda s: s.median_test_nrmse)
 
     def twin_of(score, name):  # a twin's copy: the same fit, at no cost
@@ -614,7 +634,7 @@ def compare_models(
         )
 
     failed = _with_twins(failed, twins, twin_of)
-    if not screening:
+    if not screening or finalists == 0:
         return _with_twins(scores, twins, twin_of) + failed
     # Every candidate within SCREEN_KEEP_RATIO of the best screened score, and at
     # least `finalists` of them (a twin goes with the one it repeats).
@@ -624,8 +644,8 @@ def compare_models(
     )
     finalists = max(finalists, close)
     final = []
-    for screened in scores[:finalists]:
-        name = screened.name
+    for candidate in scores[:finalists]:
+        name = candidate.name
         # The finalists' standard errors are not reported (`select_model` refits
         # the winner): their own Jacobian serves, not a refined one.
         kwargs = dict(fit_kwargs)
@@ -633,14 +653,14 @@ def compare_models(
         outcome, message, seconds = attempt(
             name,
             "full",
-            lambda s=screened: s.result.constrained,  # pyright: ignore[reportOptionalMemberAccess]  # ranked: a result
+            lambda s=candidate: s.result.constrained,  # pyright: ignore[reportOptionalMemberAccess]  # ranked: a result
             train,
             test,
             masks,
             kwargs,
         )
         if outcome is None:
-            final.append(screened)
+            final.append(candidate)
             continue
         result, test_rmse, test_nrmse = outcome
         score = ModelScore(
@@ -649,10 +669,10 @@ def compare_models(
             test_names,
             test_rmse,
             test_nrmse,
-            seconds + screened.fit_time,
+            seconds + candidate.fit_time,
             len(result.names),
             stage="full",
-            screening_time=screened.screening_time,
+            screening_time=candidate.screening_time,
             full_time=seconds,
         )
         report(
@@ -671,6 +691,38 @@ def compare_models(
     final = _with_twins(final, twins, twin_of)
     final.sort(key=lambda s: (s.stage != "full", s.median_test_nrmse))
     return final + _with_twins(scores[finalists:], twins, twin_of) + failed
+
+
+def _pooled(score: ModelScore, screened) -> ModelScore:
+    """`score` with the held-out errors of its screenings in `screened` (other
+    runs' `ModelScore` lists) after its own (failed there: infinite)."""
+    if not screened:
+        return score
+    names, rmses, nrmses = [score.test_names], [score.test_rmse], [score.test_nrmse]
+    seconds = 0.0
+    for others in screened:
+        # The first of a name: its fit (a failed one, ranked last, comes after).
+        other = next((o for o in others if o.name == score.name), None)
+        if other is None:
+            continue  # not screened there: nothing to pool (counted by its own runs)
+        count = len(other.test_names)
+        ok = other.error is None
+        names.append(tuple(other.test_names))
+        rmses.append(other.test_rmse if ok else np.full(count, np.inf))
+        nrmses.append(
+            np.where(np.isfinite(other.test_nrmse), other.test_nrmse, np.inf)
+            if ok
+            else np.full(count, np.inf)
+        )
+        seconds += other.fit_time
+    return dataclasses.replace(
+        score,
+        test_names=sum(names, ()),
+        test_rmse=np.concatenate(rmses),
+        test_nrmse=np.concatenate(nrmses),
+        fit_time=score.fit_time + seconds,
+        screening_time=(score.screening_time or 0.0) + seconds,
+    )
 
 
 def _twins(candidates) -> tuple[dict[str, str], dict[str, Any]]:
@@ -1130,14 +1182,17 @@ def select_model(
     stop=None,
     tolerance: float = PARSIMONY_TOLERANCE,
     statistic: str = SELECTION_STATISTIC,
+    screen_folds: str = SCREEN_FOLDS,
     **fit_kwargs,
 ) -> Selection:
     """Select a model by cross-validated held-out error, then refit it on
     everything.
 
-    Every candidate is screened and the finalists fitted on the first fold of
-    `cv_folds` (as `compare_models`); the finalists are then fitted on each other
-    fold (stage `"cv"`, from their template), and each one's per-record held-out
+    Every candidate is screened on the first fold of `cv_folds` (`screen_folds=
+    "every"`: on every fold, the finalists chosen by the screened held-out errors
+    pooled over the folds) and the finalists fitted in full on the first fold (as
+    `compare_models`), then on each other fold
+    (stage `"cv"`, from their template), and each one's per-record held-out
     NRMSEs are pooled over the folds. The rule (`parsimony`) chooses the finalist
     with the lowest median (`SELECTION_STATISTIC`) pooled NRMSE, the simplest
     (Bingham < Dahl < LuGre < Bouc–Wen < Spencer < shear-thinning Spencer, without
@@ -1161,6 +1216,8 @@ def select_model(
     - `test`: held-out experiments (one fold), or `None` for the folds.
     - `tolerance`, `statistic`: the rule's margin and statistic (`parsimony`;
       defaults `PARSIMONY_TOLERANCE`, 0.002, and `SELECTION_STATISTIC`, the median).
+    - `screen_folds`: `"every"` or `"first"` (`SCREEN_FOLDS`): the folds every
+      candidate is screened on (with given `test`, the one split either way).
     - `discard`, `smoothing`: [s], one number or one per experiment of `train` (and
       then of `test`, in that order), as `fit`'s (`None`: each experiment's own).
 
@@ -1209,20 +1266,36 @@ def select_model(
     if names_or_models is None:  # the library's defaults, as `jaxmr fit`'s
         names_or_models = default_candidates(everything)
     check_rule(tolerance, statistic)
+    if screen_folds not in ("every", "first"):
+        raise ValueError(
+            f"`screen_folds` must be 'every' or 'first', got {screen_folds!r}."
+        )
     report = _reporter(callback, log)
     first, *others = inputs
-    scores = compare_models(
-        names_or_models,
-        first["train"],
-        first["test"],
-        score_from=first["score_from"],
-        log=log,
-        callback=callback,
-        discard=first["discard"],
-        smoothing=first["smoothing"],
-        test_smoothing=first["test_smoothing"],
-        stop=stop,
-        **fit_kwargs,
+    screened = []
+    if screen_folds == "every" and fit_kwargs.get("finalists", MIN_FINALISTS):
+        screened = _screen_others(
+            names_or_models, others, descriptions, log, report, stop, fit_kwargs
+        )
+        stopped = [
+            s
+            for fold in screened
+            for s in fold
+            if s.result is not None and s.result.interrupted
+        ]
+        if stopped:  # interrupted: the fit under way, as the comparison's own
+            return Selection(
+                stopped[0].name,
+                stopped[0].result,  # pyright: ignore[reportArgumentType]  # not None
+                screened[-1],
+                holdout,
+                folds=descriptions,
+            )
+        if log is not None and others:
+            log(f"fold 1 ({descriptions[0]}): screening, then the finalists in full")
+    # One reporter for every stage: its lines add up each candidate's screenings.
+    scores = _compare_on(
+        names_or_models, first, report, stop, screened=screened, **fit_kwargs
     )
     if scores[0].error is not None or scores[0].result is None:
         raise RuntimeError(
@@ -1315,6 +1388,45 @@ def select_model(
     )
 
 
+def _compare_on(names_or_models, data, callback, stop, **kwargs) -> list[ModelScore]:
+    """`compare_models` on one fold's data and options (`_fold_inputs`)."""
+    return compare_models(
+        names_or_models,
+        data["train"],
+        data["test"],
+        score_from=data["score_from"],
+        callback=callback,
+        discard=data["discard"],
+        smoothing=data["smoothing"],
+        test_smoothing=data["test_smoothing"],
+        stop=stop,
+        **kwargs,
+    )
+
+
+def _screen_others(names_or_models, others, descriptions, log, report, stop, kw):
+    """Every candidate screened on each of the `others` folds (`compare_models`
+    with `finalists=0`), its held-out records tagged `[fold k]`: `compare_models`'
+    `screened` for the first fold. Stops early when a fit is interrupted."""
+    screened = []
+    kwargs = {**kw, "finalists": 0}
+    for k, data in enumerate(others, start=2):
+        if log is not None:
+            log(f"fold {k} ({descriptions[k - 1]}): screening every candidate")
+        scores = _compare_on(names_or_models, data, report, stop, **kwargs)
+        screened.append(
+            [
+                dataclasses.replace(
+                    s, test_names=tuple(f"{n} [fold {k}]" for n in s.test_names)
+                )
+                for s in scores
+            ]
+        )
+        if any(s.result is not None and s.result.interrupted for s in scores):
+            break
+    return screened
+
+
 def _fold_inputs(everything, fold, discards, widths) -> dict:
     """`compare_models`' data and options for one fold: the held-out samples are
     scored from each held-out experiment's start plus its discard (and, in a time
@@ -1342,13 +1454,10 @@ def _cross_validate(names_or_models, scores, others, report, stop, fit_kwargs, r
     on the `others` folds, their held-out errors pooled over every fold, and the
     parsimony rule's choice first in the ranking: `(scores, Parsimony)`.
 
-    Cost: screening runs once, on the first fold, and only the finalists are fitted
-    on the other folds (each from its template, built on that fold's training
-    data, as `fit` alone runs it: not from the first fold's fit, whose training
-    data include the other folds' held-out records). Screening every candidate on
-    every fold would multiply the cheap stage by the folds for little: the
-    screening only has to cut clearly worse candidates (`SCREEN_KEEP_RATIO`),
-    while the finalists' full fits, which decide, do get every fold.
+    Only the finalists are fitted in full on the other folds (each from its
+    template, built on that fold's training data, as `fit` alone runs it: not from
+    the first fold's fit, whose training data include the other folds' held-out
+    records).
     """
     finalists = [s for s in scores if s.stage == "full" and s.error is None]
     rest = [s for s in scores if not (s.stage == "full" and s.error is None)]
@@ -1372,19 +1481,7 @@ def _cross_validate(names_or_models, scores, others, report, stop, fit_kwargs, r
         kwargs.pop("finalists", None)
         kwargs.pop("screen_steps", None)
         kwargs.setdefault("statistics_refinement", 1)
-        fold_scores = compare_models(
-            builds,
-            data["train"],
-            data["test"],
-            score_from=data["score_from"],
-            callback=relabel,
-            discard=data["discard"],
-            smoothing=data["smoothing"],
-            test_smoothing=data["test_smoothing"],
-            stop=stop,
-            finalists=None,
-            **kwargs,
-        )
+        fold_scores = _compare_on(builds, data, relabel, stop, finalists=None, **kwargs)
         for f in fold_scores:
             names, rmses, nrmses, seconds = pooled[f.name]
             tagged = tuple(f"{n} [fold {k}]" for n in f.test_names)
