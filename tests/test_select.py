@@ -1,6 +1,7 @@
 """Model templates and model selection: Bouc–Wen beats Bingham on held-out data of the
 published Bouc–Wen brake; the templates' initial guesses fit the data's scales."""
 
+import threading
 from types import SimpleNamespace
 
 import equinox as eqx
@@ -492,6 +493,37 @@ def test_finalists_are_chosen_on_every_folds_screening():
         compare_models(candidates, train, test, finalists=-1)
     with pytest.raises(ValueError, match="screen_folds"):
         jaxmr.select_model(candidates, runs, screen_folds="all")
+
+
+def test_a_stop_while_screening_another_fold_returns_the_fit_under_way():
+    """With `screen_folds="every"` the other folds are screened first: a stop
+    (Ctrl-C in `jaxmr fit`) there ends the selection with the fit under way, as a
+    stop in the first fold's comparison does, and nothing after it runs."""
+    runs = dahl_runs((4.0, 5.0, 6.0), (3.0, 3.0, 3.0))
+    stop = threading.Event()
+    events = []
+
+    def callback(event):
+        events.append(event)
+        stop.set()  # at the first fit's start
+
+    selection = jaxmr.select_model(
+        {"dahl": dahl_guess(), "other": dahl_guess()},
+        runs,
+        max_steps=6,
+        statistics_refinement=1,
+        screen_folds="every",
+        stop=stop,
+        callback=callback,
+    )
+    assert selection.name == "dahl" and selection.result.interrupted
+    assert [(type(e).__name__, e.name, e.stage) for e in events] == [
+        ("FitStarted", "dahl", "screening"),
+        ("FitEnded", "dahl", "screening"),
+    ]
+    assert events[1].stop is jaxmr.StopReason.INTERRUPTED
+    assert selection.parsimony is None and selection.kept is None
+    assert [s.name for s in selection.scores] == ["dahl"]
 
 
 def test_selected_model_is_never_worse_than_its_template_fitted_alone():
