@@ -14,6 +14,8 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
+
 
 def fit_command(files, out, *options, quiet: bool = True) -> float:
     """`jaxmr fit --out OUT [options] FILES` (default: auto) in a fresh process, its
@@ -52,6 +54,39 @@ def generalisation_runs(datasets, options: dict, quick: bool = False) -> None:
             command = [sys.executable, str(script), *common, *extra]
             command += ["--datasets", name, "--json", str(folder / f"{name}.json")]
             subprocess.run(command, check=True)
+
+
+def option_rule(rows, old: str, new: str, timed=None, suffix: str = "") -> dict:
+    """The figures of a choice rule between two options (saturation_choice_rule.md,
+    screening_folds_rule.md): each option's worst and median regret over `rows`
+    (`<label>_regret` each), its median wall time over the rows `timed` keeps
+    (default all), the time factor new / old, the three criteria (the worst regret
+    0.02 lower, the median at most 0.01 higher, the time at most 2x) and
+    `adopt_<new>`. `suffix` ends the time figures' keys."""
+    timed = timed or (lambda row: True)
+    figures = {}
+    for label in (old, new):
+        regrets = [r[f"{label}_regret"] for r in rows]
+        figures[f"{label}_max_regret"] = max(regrets)
+        figures[f"{label}_median_regret"] = float(np.median(regrets))
+        figures[f"{label}_median_seconds{suffix}"] = float(
+            np.median([r[f"{label}_seconds"] for r in rows if timed(r)])
+        )
+    factor = f"time_factor{suffix}"
+    figures[factor] = (
+        figures[f"{new}_median_seconds{suffix}"]
+        / figures[f"{old}_median_seconds{suffix}"]
+    )
+    criteria = {
+        "max_regret_lower_by_0.02": figures[f"{new}_max_regret"]
+        <= figures[f"{old}_max_regret"] - 0.02,
+        "median_regret_at_most_0.01_higher": figures[f"{new}_median_regret"]
+        <= figures[f"{old}_median_regret"] + 0.01,
+        "time_at_most_2x": figures[factor] <= 2.0,
+    }
+    figures["criteria"] = criteria
+    figures[f"adopt_{new}"] = all(criteria.values())
+    return figures
 
 
 def free_port() -> int:

@@ -32,14 +32,8 @@ import json
 import tempfile
 from pathlib import Path
 
-import numpy as np
-from _processes import generalisation_runs
+from _processes import generalisation_runs, option_rule
 from _report import write_figures
-
-# The rule (saturation_choice_rule.md).
-MAX_REGRET_GAIN = 0.02
-MEDIAN_REGRET_SLACK = 0.01
-TIME_FACTOR = 2.0
 
 
 def _auto(path: Path, name: str) -> dict:
@@ -100,26 +94,15 @@ def main():
         }
     rows = list(table.values())
     figures = {"datasets": table, "num_datasets": len(rows)}
-    for label in ("today", "saturating"):
-        regrets = [r[f"{label}_regret"] for r in rows]
-        figures[f"{label}_max_regret"] = max(regrets)
-        figures[f"{label}_median_regret"] = float(np.median(regrets))
-        figures[f"{label}_median_seconds_equal_load"] = float(
-            np.median([r[f"{label}_seconds"] for r in rows if r["equal_load"]])
+    figures.update(
+        option_rule(
+            rows,
+            "today",
+            "saturating",
+            timed=lambda r: r["equal_load"],
+            suffix="_equal_load",
         )
-    figures["time_factor_equal_load"] = (
-        figures["saturating_median_seconds_equal_load"]
-        / figures["today_median_seconds_equal_load"]
     )
-    criteria = {
-        "max_regret_lower_by_0.02": figures["saturating_max_regret"]
-        <= figures["today_max_regret"] - MAX_REGRET_GAIN,
-        "median_regret_at_most_0.01_higher": figures["saturating_median_regret"]
-        <= figures["today_median_regret"] + MEDIAN_REGRET_SLACK,
-        "time_at_most_2x": figures["time_factor_equal_load"] <= TIME_FACTOR,
-    }
-    figures["criteria"] = criteria
-    figures["adopt_saturating"] = all(criteria.values())
     write_figures(figures, args.json)
 
 

@@ -33,14 +33,10 @@ import json
 import tempfile
 from pathlib import Path
 
-import numpy as np
-from _processes import generalisation_runs
+from _processes import generalisation_runs, option_rule
 from _report import write_figures
 
-# The rule (screening_folds_rule.md).
-MAX_REGRET_GAIN = 0.02
-MEDIAN_REGRET_SLACK = 0.01
-TIME_FACTOR = 2.0
+# The rule (screening_folds_rule.md; its thresholds: _processes.option_rule).
 PRESETS = (
     "sim_spencer_1997",
     "sim_passenger_car_mr_damper",
@@ -119,25 +115,7 @@ def main():
             raise SystemExit(f"{name}: the two runs have different folds")
     rows = list(table.values())
     figures = {"datasets": table, "num_datasets": len(rows)}
-    for label in ("first", "every"):
-        regrets = [r[f"{label}_regret"] for r in rows]
-        figures[f"{label}_max_regret"] = max(regrets)
-        figures[f"{label}_median_regret"] = float(np.median(regrets))
-        figures[f"{label}_median_seconds"] = float(
-            np.median([r[f"{label}_seconds"] for r in rows])
-        )
-    figures["time_factor"] = (
-        figures["every_median_seconds"] / figures["first_median_seconds"]
-    )
-    criteria = {
-        "max_regret_lower_by_0.02": figures["every_max_regret"]
-        <= figures["first_max_regret"] - MAX_REGRET_GAIN,
-        "median_regret_at_most_0.01_higher": figures["every_median_regret"]
-        <= figures["first_median_regret"] + MEDIAN_REGRET_SLACK,
-        "time_at_most_2x": figures["time_factor"] <= TIME_FACTOR,
-    }
-    figures["criteria"] = criteria
-    figures["adopt_every"] = all(criteria.values())
+    figures.update(option_rule(rows, "first", "every"))
     write_figures(figures, args.json)
 
 
