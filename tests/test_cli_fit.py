@@ -239,13 +239,17 @@ def test_predict(fitted, files, tmp_path, capsys):
     header = [
         line for line in out.read_text().splitlines() if not line.startswith("#")
     ][0]
-    assert header == "t,x,v,i,F,F_std,F_lower,F_upper"
-    # Still a canonical CSV: `read_csv` reads past the band's columns.
+    assert header == "t,x,v,i,F,F_measured,F_std,F_lower,F_upper"
+    # Still a canonical CSV: `read_csv` reads past the measured force's and the
+    # band's columns.
     predicted, measured = jaxmr.data.read_csv(out), jaxmr.data.read_csv(files[1])
     for key in ("t", "x", "v", "current"):
         np.testing.assert_array_equal(getattr(predicted, key), getattr(measured, key))
     assert _nrmse(np.asarray(predicted.force), np.asarray(measured.force)) < 2 * NOISE
     band = _columns(out)
+    # The measured force beside the prediction, to the bit (shortest exact form).
+    np.testing.assert_array_equal(band["F_measured"], np.asarray(measured.force))
+    assert "F_measured: the force measured in" in out.read_text()
     assert np.all(band["F_std"] > 0)
     assert np.all((band["F_lower"] < band["F"]) & (band["F"] < band["F_upper"]))
     # A well-determined fit: the band is far narrower than the noise (0.5 % of std F).

@@ -268,6 +268,29 @@ def test_csv_round_trip(tmp_path, rotary, drive, constant, with_force):
     assert back.is_constant_current == constant
 
 
+def test_a_measured_force_beside_a_prediction(tmp_path):
+    """`write_csv(measured=)` writes the measured torque of a brake's record beside its
+    predicted one (`T_measured`, after `T`, in N·m); `read_csv` reads the predicted one
+    back and past the column. Without a predicted force, or of another length, it is
+    refused before anything is written."""
+    t, x, v = _sine(n=200)
+    predicted = jd.Experiment(t, x, v, 0.5, 3.0 * v, name="brake", rotary=True)
+    measured = 3.0 * v + 0.01 * np.sin(7 * t)
+    path = tmp_path / "p.csv"
+    jd.write_csv(predicted, path, measured=measured)
+    text = path.read_text()
+    assert "t,theta,omega,i,T,T_measured\n" in text and "T_measured [N·m]" in text
+    _assert_same(predicted, jd.read_csv(path))
+    lines = [line for line in text.splitlines() if not line.startswith("#")][1:]
+    column = np.array([float(line.split(",")[5]) for line in lines])
+    np.testing.assert_array_equal(column, measured)  # shortest exact form
+    with pytest.raises(ValueError, match="`measured` goes with a predicted force"):
+        jd.write_csv(jd.Experiment(t, x, v, 0.5), tmp_path / "a.csv", measured=measured)
+    with pytest.raises(ValueError, match=r"`measured` has shape \(199,\)"):
+        jd.write_csv(predicted, tmp_path / "b.csv", measured=measured[1:])
+    assert not (tmp_path / "a.csv").exists() and not (tmp_path / "b.csv").exists()
+
+
 def test_processing_travels_with_the_experiment(tmp_path):
     """`smoothing` and `discard` [s] go to a file's comment lines and come back."""
     t, x, v = _sine(n=300)

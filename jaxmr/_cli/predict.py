@@ -45,7 +45,8 @@ def add_parser(subparsers) -> None:
             "parameters' uncertainty: F_std (the prediction's standard error), "
             "F_lower and F_upper (the band's edges), in N (T_std, T_lower, T_upper "
             "in N·m for a brake); no band for a parameter file without the fit's "
-            "covariance. A measured force in FILE is only used to print the error."
+            "covariance. A measured force in FILE is written beside the prediction, "
+            "F_measured (T_measured), and its error printed."
         ),
     )
     command.add_argument("params", metavar="PARAMS.json", help="the fitted model")
@@ -145,6 +146,10 @@ def run(args: argparse.Namespace) -> int:
     if beyond is not None:
         comment += f"\nwarning: {beyond}"
     if experiment.force is not None:
+        comment += (
+            f"\n{load}_measured: the {'torque' if experiment.rotary else 'force'} "
+            f"measured in {args.file}, as read"
+        )
         if predicted_by_jaxmr(args.file):
             warnings.warn(
                 f"the {load} column of {args.file} was predicted by jaxmr "
@@ -160,7 +165,9 @@ def run(args: argparse.Namespace) -> int:
             comment += f"\nnote: {narrow}"
     write_atomically(
         out,
-        lambda path: jaxmr.data.write_csv(result, path, comment=comment, band=band),
+        lambda path: jaxmr.data.write_csv(
+            result, path, comment=comment, measured=experiment.force, band=band
+        ),
         replacing=out in replacing,
     )
     return 0

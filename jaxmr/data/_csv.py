@@ -24,10 +24,11 @@ Columns (names are case-sensitive):
 - rotary brake: `theta` [rad], `omega` [rad/s], `T` [N·m], in the same roles;
 - the input, exactly one of `i` [A] (coil current) or `u` [V] (command voltage),
   constant or time-varying;
-- optional, beside a predicted force (`jaxmr predict`, `write_csv`'s `band`): its
-  prediction band, `F_std` (the prediction's standard error), `F_lower` and
-  `F_upper` (the band's edges) [N] (`T_std`, `T_lower`, `T_upper` [N·m] for a
-  brake); `read_csv` reads past them (an `Experiment` has no band).
+- optional, beside a predicted force (`jaxmr predict`, `write_csv`'s `measured` and
+  `band`): the measured force `F_measured` [N], and the prediction band, `F_std` (the
+  prediction's standard error), `F_lower` and `F_upper` (the band's edges) [N]
+  (`T_measured`, `T_std`, `T_lower`, `T_upper` [N·m] for a brake); `read_csv` reads
+  past them (an `Experiment` holds one force, here the predicted one).
 
 Comments of the form `# name: ...` and `# velocity: ...` set the experiment's name
 (default: the file stem) and the origin of the `v` column (default: measured).
@@ -80,7 +81,14 @@ _UNITS = {
 # The prediction band's columns (`write_csv`'s `band`): `F_std`, `F_lower`, `F_upper`
 # (`T_*` for a brake), each in the force's unit.
 _BAND = ("std", "lower", "upper")
-_UNITS |= {f"{load}_{part}": _UNITS[load] for load in ("F", "T") for part in _BAND}
+# The measured force beside a predicted one (`write_csv`'s `measured`): `F_measured`
+# (`T_measured`), so that the two are compared in one file.
+_MEASURED = "measured"
+_UNITS |= {
+    f"{load}_{part}": _UNITS[load]
+    for load in ("F", "T")
+    for part in (_MEASURED, *_BAND)
+}
 _KNOWN = tuple(_UNITS)
 # Names people write for the canonical columns, for the "did you mean" hint.
 _ALIASES = {
@@ -157,7 +165,7 @@ def _check_header(names: list[str], where: str) -> None:
             f"{where}: unknown column names {', '.join(hints)}. Found {found}; expected "
             f"{_expected()}. Names are case-sensitive and carry no units (SI assumed)."
         )
-    # A band column (`F_std`) belongs to its force's device.
+    # A column beside the force (`F_std`, `F_measured`) belongs to its device.
     linear = [n for n in names if n.partition("_")[0] in _LINEAR.values()]
     rotary = [n for n in names if n.partition("_")[0] in _ROTARY.values()]
     if linear and rotary:
@@ -462,6 +470,7 @@ def write_csv(
     comment: str | None = None,
     smoothing: float | None = None,
     discard: float | None = None,
+    measured=None,
     band=None,
 ) -> None:
     """Write an experiment in jaxmr's canonical CSV format (see the module docstring).
@@ -482,13 +491,16 @@ def write_csv(
     - `discard`: the start [s] to leave out of the score, written as
       `# discard: <duration> s`; None (default): the experiment's own `discard`,
       written when it is not 0.
+    - `measured`: the measured force [N] (torque [N·m] for a brake) of a record whose
+      `force` is a prediction, one value per sample: written after the force as the
+      column `F_measured` (`T_measured`); None (default): no such column.
     - `band`: a `jaxmr.PredictionBand` of the experiment, whose `force` is then the
       prediction: its `std`, `lower` and `upper` are written after the force as the
       columns `F_std`, `F_lower`, `F_upper` [N] (`T_*` [N·m] for a brake); None
       (default): no band.
 
     `read_csv` reads both back into the experiment (`read_processing` alone), and
-    reads past a band's columns.
+    reads past the measured force's and the band's columns.
     """
     own = lambda value: value or None  # an experiment's 0 (none) writes no line
     if smoothing is None:
@@ -504,22 +516,26 @@ def write_csv(
     if experiment.force is not None:
         names.append(roles["force"])
         arrays.append(experiment.force)
+    beside = {} if measured is None else {_MEASURED: ("`measured`", measured)}
     if band is not None:
-        if experiment.force is None:
+        beside |= {
+            part: (f"the band's `{part}`", getattr(band, part)) for part in _BAND
+        }
+    if beside and experiment.force is None:
+        given = "`measured`" if measured is not None else "a `band`"
+        raise ValueError(
+            f"write_csv: {given} goes with a predicted force: give the experiment "
+            "the prediction as its `force`."
+        )
+    for part, (what, values) in beside.items():
+        column = np.asarray(values, dtype=np.float64)
+        if column.shape != np.shape(experiment.t):
             raise ValueError(
-                "write_csv: a `band` goes with a predicted force: give the experiment "
-                "the band's prediction as its `force`."
+                f"write_csv: {what} has shape {column.shape}, but the experiment has "
+                f"{len(experiment)} samples: give the values of this experiment."
             )
-        for part in _BAND:
-            column = np.asarray(getattr(band, part), dtype=np.float64)
-            if column.shape != np.shape(experiment.t):
-                raise ValueError(
-                    f"write_csv: the band's `{part}` has shape {column.shape}, but "
-                    f"the experiment has {len(experiment)} samples: give the band of "
-                    "this experiment."
-                )
-            names.append(f"{roles['force']}_{part}")
-            arrays.append(column)
+        names.append(f"{roles['force']}_{part}")
+        arrays.append(column)
     data = np.stack([np.asarray(a, dtype=np.float64) for a in arrays], axis=1)
 
     def one_line(text: str) -> str:
