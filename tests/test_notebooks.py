@@ -15,7 +15,7 @@ from tests.xla_flags import FAST_COMPILE_VARIABLE, without_fast_compile_flags
 
 ROOT = Path(__file__).resolve().parents[1]
 NOTEBOOKS = sorted((ROOT / "notebooks").glob("*.ipynb"))
-RUN_LONGER_THAN_THEY_COMPILE = ("02_", "06_")
+RUN_LONGER_THAN_THEY_COMPILE = ("02_",)
 
 
 def test_notebooks_found():
@@ -30,9 +30,10 @@ def test_notebook_executes(path, monkeypatch):
         os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")])),
     )
     if path.name.startswith(RUN_LONGER_THAN_THEY_COMPILE):
-        # Their fits and tuning runs took longer under the suite's fast compilation
-        # (tests/xla_flags.py): notebook 02 45 s instead of 34 s, 06 32 s either way;
-        # the other notebooks gained 0-5 s each.
+        # Its fits take longer under the suite's fast compilation (tests/xla_flags.py):
+        # its cells 143 s instead of 85 s (2026-11-28, a 2.5 GHz Xeon, alone). Notebook
+        # 06 compiles more than it runs there: 66 s instead of 86 s with it; the
+        # other notebooks gained 0-5 s each (measured earlier).
         flags = without_fast_compile_flags(os.environ.get("XLA_FLAGS", ""))
         monkeypatch.setenv("XLA_FLAGS", flags)
         monkeypatch.delenv(FAST_COMPILE_VARIABLE, raising=False)
