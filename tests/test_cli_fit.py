@@ -404,7 +404,8 @@ def test_no_band_without_the_fits_covariance(fitted, files, tmp_path):
     out = tmp_path / "pred.csv"
     status, stdout = _run(["predict", old, files[0], "--out", out])
     assert status == 0
-    assert list(_columns(out)) == ["t", "x", "v", "i", "F"]
+    # The measured force beside the prediction, and no band columns.
+    assert list(_columns(out)) == ["t", "x", "v", "i", "F", "F_measured"]
     assert stdout.count("no prediction band") == 1
     assert "holds no covariance of the fitted parameters" in stdout
     images = []
