@@ -620,7 +620,7 @@ def compare_models(
         scores.append(score)
         if result.interrupted:
             return sorted(scores, key=lambda s: s.median_test_nrmse) + failed
-    scores = [_pooled(s, screened) for s in scores]
+    scores = [_pooled(s, screened, "screening_time") for s in scores]
     scores.sort(key=lambda s: s.median_test_nrmse)
 
     def twin_of(score, name):  # a twin's copy: the same fit, at no cost
@@ -693,35 +693,42 @@ def compare_models(
     return final + _with_twins(scores[finalists:], twins, twin_of) + failed
 
 
-def _pooled(score: ModelScore, screened) -> ModelScore:
-    """`score` with the held-out errors of its screenings in `screened` (other
-    runs' `ModelScore` lists) after its own (failed there: infinite)."""
-    if not screened:
+def _tagged(score: ModelScore, k: int) -> ModelScore:
+    """`score` with its held-out records' names tagged `[fold k]`."""
+    names = tuple(f"{n} [fold {k}]" for n in score.test_names)
+    return dataclasses.replace(score, test_names=names)
+
+
+def _pooled(score: ModelScore, others, stage_time: str) -> ModelScore:
+    """`score` with the held-out errors of the same candidate in `others` (other
+    folds' `ModelScore` lists, their records tagged `[fold k]`) after its own: a
+    fit that failed there counts its records as infinite, as does a non-finite
+    error (a diverged simulation); one absent there pools nothing (counted by its
+    own runs). The others' fit time is added to `fit_time` and to `stage_time`
+    (`"screening_time"` or `"cv_time"`)."""
+    if not others:
         return score
     names, rmses, nrmses = [score.test_names], [score.test_rmse], [score.test_nrmse]
     seconds = 0.0
-    for others in screened:
+    for scores in others:
         # The first of a name: its fit (a failed one, ranked last, comes after).
-        other = next((o for o in others if o.name == score.name), None)
+        other = next((o for o in scores if o.name == score.name), None)
         if other is None:
-            continue  # not screened there: nothing to pool (counted by its own runs)
+            continue
         count = len(other.test_names)
         ok = other.error is None
         names.append(tuple(other.test_names))
         rmses.append(other.test_rmse if ok else np.full(count, np.inf))
-        nrmses.append(
-            np.where(np.isfinite(other.test_nrmse), other.test_nrmse, np.inf)
-            if ok
-            else np.full(count, np.inf)
-        )
+        nrmses.append(other.test_nrmse if ok else np.full(count, np.inf))
         seconds += other.fit_time
+    nrmse = np.concatenate(nrmses)
     return dataclasses.replace(
         score,
         test_names=sum(names, ()),
         test_rmse=np.concatenate(rmses),
-        test_nrmse=np.concatenate(nrmses),
+        test_nrmse=np.where(np.isfinite(nrmse), nrmse, np.inf),
         fit_time=score.fit_time + seconds,
-        screening_time=(score.screening_time or 0.0) + seconds,
+        **{stage_time: (getattr(score, stage_time) or 0.0) + seconds},
     )
 
 
@@ -1414,14 +1421,7 @@ def _screen_others(names_or_models, others, descriptions, log, report, stop, kw)
         if log is not None:
             log(f"fold {k} ({descriptions[k - 1]}): screening every candidate")
         scores = _compare_on(names_or_models, data, report, stop, **kwargs)
-        screened.append(
-            [
-                dataclasses.replace(
-                    s, test_names=tuple(f"{n} [fold {k}]" for n in s.test_names)
-                )
-                for s in scores
-            ]
-        )
+        screened.append([_tagged(s, k) for s in scores])
         if any(s.result is not None and s.result.interrupted for s in scores):
             break
     return screened
@@ -1463,12 +1463,12 @@ def _cross_validate(names_or_models, scores, others, report, stop, fit_kwargs, r
     rest = [s for s in scores if not (s.stage == "full" and s.error is None)]
     if not finalists:
         return scores, None
-    pooled = {s.name: [s.test_names, s.test_rmse, s.test_nrmse, 0.0] for s in finalists}
     wanted = {s.name for s in finalists}
 
     def relabel(event):  # the other folds' full fits have the stage "cv"
         report(dataclasses.replace(event, stage="cv"))
 
+    folds = []
     for k, data in enumerate(others, start=2):
         # `compare_models` calls each with the fold's training data; `build` is
         # already bound to them (the same labels as the first fold's).
@@ -1482,38 +1482,13 @@ def _cross_validate(names_or_models, scores, others, report, stop, fit_kwargs, r
         kwargs.pop("screen_steps", None)
         kwargs.setdefault("statistics_refinement", 1)
         fold_scores = _compare_on(builds, data, relabel, stop, finalists=None, **kwargs)
-        for f in fold_scores:
-            names, rmses, nrmses, seconds = pooled[f.name]
-            tagged = tuple(f"{n} [fold {k}]" for n in f.test_names)
-            nrmse_k = f.test_nrmse if f.error is None else np.full(len(tagged), np.nan)
-            rmse_k = f.test_rmse if f.error is None else np.full(len(tagged), np.nan)
-            pooled[f.name] = [
-                names + tagged,
-                np.concatenate([rmses, rmse_k]),
-                np.concatenate([nrmses, nrmse_k]),
-                seconds + f.fit_time,
-            ]
+        folds.append([_tagged(f, k) for f in fold_scores])
         if any(f.result is not None and f.result.interrupted for f in fold_scores):
             return scores, None
-    finalists = [
-        dataclasses.replace(
-            s,
-            test_names=pooled[s.name][0],
-            test_rmse=pooled[s.name][1],
-            test_nrmse=pooled[s.name][2],
-            fit_time=s.fit_time + pooled[s.name][3],
-            cv_time=pooled[s.name][3] if others else None,
-        )
-        for s in finalists
-    ]
+    finalists = [_pooled(s, folds, "cv_time") for s in finalists]
     decision = parsimony(
         [s.name for s in finalists],
-        np.stack(
-            [
-                np.where(np.isfinite(s.test_nrmse), s.test_nrmse, np.inf)
-                for s in finalists
-            ]
-        ),
+        np.stack([s.test_nrmse for s in finalists]),
         **rule,
     )
     finalists.sort(key=lambda s: (s.name != decision.chosen, s.median_test_nrmse))
