@@ -360,6 +360,28 @@ def test_a_fit_that_breaks_its_models_constraints_says_so():
     )  # no warning (an error here)
 
 
+def test_a_model_broken_only_below_zero_input_says_to_clip_the_input():
+    """An input that dips below zero (an amplifier's offset or noise) takes a current
+    law fitted for inputs at or above zero below its bound. The warning says that it
+    is broken only there and to clip the input, not to constrain parameters that
+    already are."""
+    import jaxmr.data
+
+    t = np.linspace(0.0, 1.0, 201)
+    w = 2 * np.pi
+    v = 0.01 * w * np.cos(w * t)
+    current = 0.5 + 0.6 * np.sin(3 * w * t)  # down to -0.1 A
+    f_c = jaxmr.LinearLaw(jaxmr.Fixed(5.0), jaxmr.Fixed(300.0))  # -25 N at -0.1 A
+    force = (5.0 + 300.0 * current) * np.tanh(v / 0.01) + 500 * v
+    run = jaxmr.data.Experiment(t, 0.01 * np.sin(w * t), v, current, force, name="r")
+    model = jaxmr.Bingham(f_c, jaxmr.Positive(400.0), velocity_scale=jaxmr.Fixed(0.01))
+    with pytest.warns(UserWarning, match="only where the input is below zero") as got:
+        jaxmr.fit(model, [run], max_steps=5, progress=False)
+    (message,) = [str(w.message) for w in got if "constraints" in str(w.message)]
+    assert "-0.1 A or V" in message and "clip the input at zero" in message
+    assert "constrain those parameters" not in message
+
+
 def test_a_parameter_at_a_mode_of_its_model_is_left_alone():
     """Bingham's `velocity_scale` of 0 (its default) is the exact sign, a form of the
     model rather than a size: the force does not change with it there. A fit of a

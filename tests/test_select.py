@@ -963,3 +963,37 @@ def test_selection_bends_a_law_only_where_the_force_levels_off(brake, bent):
     selection = jaxmr.select_model(["bouc_wen", "bouc_wen_saturating"], data, **options)
     expected = "bouc_wen_saturating" if bent else "bouc_wen"
     assert selection.name == expected, selection.parsimony
+
+
+def test_a_selection_warns_of_broken_constraints_once_for_the_model_it_returns():
+    """Screening, the finalists' and the other folds' fits of every candidate each
+    broke the same constraints on an input that dips below zero, and each warned
+    (12 warnings on the NEES record): only the model handed back is the user's
+    concern, and it warns once."""
+    t = np.linspace(0.0, 1.0, 101)
+    w = 2 * np.pi
+    v = 0.01 * w * np.cos(w * t)
+    runs = []
+    for level in (0.2, 0.5, 0.8):
+        current = level + 0.3 * np.sin(3 * w * t)  # dips to -0.1 A at 0.2 A
+        force = (5.0 + 300.0 * current) * np.tanh(v / 0.01) + 500 * v
+        runs.append(
+            jaxmr.data.Experiment(
+                t, 0.01 * np.sin(w * t), v, current, force, name=f"{level} A"
+            )
+        )
+    f_c = jaxmr.LinearLaw(jaxmr.Fixed(5.0), jaxmr.Fixed(300.0))  # -25 N at -0.1 A
+
+    def bingham(c0):
+        scale = jaxmr.Fixed(0.01)
+        return jaxmr.Bingham(f_c, jaxmr.Positive(c0), velocity_scale=scale)
+
+    candidates = {"low": bingham(300.0), "high": bingham(800.0)}
+    with pytest.warns(UserWarning) as got:
+        jaxmr.select_model(
+            candidates, runs, max_steps=3, progress=False, statistics_refinement=1
+        )
+    broken = [
+        str(w.message) for w in got if "breaks its own constraints" in str(w.message)
+    ]
+    assert len(broken) == 1, broken

@@ -2,6 +2,8 @@
 squares — the entry points that tie the stages together (data → residual → solver →
 result)."""
 
+import contextlib
+import re
 import warnings
 from collections.abc import Callable, Sequence
 
@@ -210,18 +212,26 @@ def broken_constraints(model, experiments) -> list[str]:
     """The messages of the physical constraints (a negative dashpot, ...) that
     `model` (its values: constraint wrappers resolved) breaks over the inputs of
     `experiments` (a current law is checked across their range), or []."""
+    if not experiments:
+        return []
+    inputs = _inputs(experiments)
+    return _broken_over(model, inputs.min(), inputs.max())
+
+
+def _inputs(experiments) -> np.ndarray:
+    """Every input sample [A or V] of `experiments`, in one flat array."""
+    return np.concatenate([np.ravel(np.asarray(e.current, float)) for e in experiments])
+
+
+def _broken_over(model, lo: float, hi: float) -> list[str]:
+    """`broken_constraints` over the inputs from `lo` to `hi` [A or V]."""
     device = model.model if isinstance(model, ChannelDelay) else model
     hysteresis = device.hysteresis if isinstance(device, Damper) else device
-    if not isinstance(hysteresis, AbstractHysteresis) or not experiments:
+    if not isinstance(hysteresis, AbstractHysteresis):
         return []
     hysteresis = unwrap(hysteresis)
-    inputs = np.concatenate(
-        [np.ravel(np.asarray(e.current, float)) for e in experiments]
-    )
     with jax.ensure_compile_time_eval():
-        checks = hysteresis.checks_over(
-            jnp.asarray(inputs.min()), jnp.asarray(inputs.max())
-        )
+        checks = hysteresis.checks_over(jnp.asarray(lo), jnp.asarray(hi))
         return [
             c.message().rstrip(".")
             for c in checks
@@ -229,23 +239,58 @@ def broken_constraints(model, experiments) -> list[str]:
         ]
 
 
+# How a broken-constraint warning starts (`constraints_unwarned` matches it).
+BROKEN_CONSTRAINTS = "the fitted model breaks its own constraints"
+
+
 def warn_broken_constraints(model, experiments) -> list[str]:
     """Warn (and return the messages) where a fitted model breaks its own physical
     constraints over the inputs of `experiments`: a plain parameter is fitted
     without bounds, and on poor data it can leave them; its simulations
-    (`simulate`, `load_model`) would then refuse the model."""
+    (`simulate`, `load_model`) would then refuse the model. Where it breaks them
+    only at inputs below zero (an amplifier's offset or noise on a current or
+    command channel), the warning says so: there the advice is to clip the input,
+    not to constrain the parameters."""
     broken = broken_constraints(model, experiments)
-    if broken:
-        warnings.warn(
-            "the fitted model breaks its own constraints: "
-            + "; ".join(broken)
-            + ". Its simulations will refuse it: constrain those parameters "
-            "(jaxmr.Positive, jaxmr.Bounded), as jaxmr.templates does, or check the "
-            "data.",
-            UserWarning,
-            stacklevel=3,
-        )
+    if not broken:
+        return broken
+    inputs = _inputs(experiments)
+    if inputs.min() < 0 <= inputs.max():
+        if not _broken_over(model, 0.0, inputs.max()):
+            below = int(np.sum(inputs < 0))
+            warnings.warn(
+                f"{BROKEN_CONSTRAINTS} only where the input is below zero (down to "
+                f"{inputs.min():.4g} A or V, {below} of {inputs.size} samples): "
+                + "; ".join(broken)
+                + ". Its current laws are fitted for inputs at or above zero and "
+                "turn negative below it; `simulate` refuses it over such inputs "
+                "(`predict_all` runs it). If the negative values are an offset or "
+                "noise, clip the input at zero before fitting (numpy.maximum(i, 0)).",
+                UserWarning,
+                stacklevel=3,
+            )
+            return broken
+    warnings.warn(
+        f"{BROKEN_CONSTRAINTS}: "
+        + "; ".join(broken)
+        + ". Its simulations will refuse it: constrain those parameters "
+        "(jaxmr.Positive, jaxmr.Bounded), as jaxmr.templates does, or check the "
+        "data.",
+        UserWarning,
+        stacklevel=3,
+    )
     return broken
+
+
+@contextlib.contextmanager
+def constraints_unwarned():
+    """Within it, `fit` does not warn of broken constraints (`select_model`'s
+    screening and cross-validation fits: it warns once, for the model it returns)."""
+    with warnings.catch_warnings():
+        warnings.filterwarnings(
+            "ignore", message=re.escape(BROKEN_CONSTRAINTS), category=UserWarning
+        )
+        yield
 
 
 def _report(free, static, data, outcome, stats_data, threshold, residuals_fn):

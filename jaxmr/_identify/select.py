@@ -16,7 +16,7 @@ import equinox as eqx
 import numpy as np
 
 from .data import experiment_list, per_experiment
-from .fitting import fit
+from .fitting import constraints_unwarned, fit, warn_broken_constraints
 from .result import FitResult, StopReason
 from .score import nrmse, predict_all, rmse
 from .templates import (
@@ -1232,7 +1232,9 @@ def select_model(
     held-out experiments together, twice (from its training fit, and from its own
     start as `fit` alone would: the lower loss is kept), the ranking (the chosen
     candidate first, then the other finalists by mean pooled held-out NRMSE) and
-    the rule's decision (`Selection.parsimony`).
+    the rule's decision (`Selection.parsimony`). Of the fits along the way, only
+    the model handed back warns where it breaks its own constraints (as `fit`
+    does), once.
 
     **Raises:** `RuntimeError` when every candidate failed.
     """
@@ -1277,122 +1279,129 @@ def select_model(
         raise ValueError(
             f"`screen_folds` must be 'every' or 'first', got {screen_folds!r}."
         )
-    report = _reporter(callback, log)
-    first, *others = inputs
-    screened = []
-    if screen_folds == "every" and fit_kwargs.get("finalists", MIN_FINALISTS):
-        screened = _screen_others(
-            names_or_models, others, descriptions, log, report, stop, fit_kwargs
-        )
-        stopped = [
-            s
-            for fold in screened
-            for s in fold
-            if s.result is not None and s.result.interrupted
-        ]
-        if stopped:  # interrupted: the fit under way, as the comparison's own
-            return Selection(
-                stopped[0].name,
-                stopped[0].result,  # pyright: ignore[reportArgumentType]  # not None
-                screened[-1],
-                holdout,
-                folds=descriptions,
+    # The screening and cross-validation fits do not warn of broken constraints:
+    # the model handed back does, once (below).
+    with constraints_unwarned():
+        report = _reporter(callback, log)
+        first, *others = inputs
+        screened = []
+        if screen_folds == "every" and fit_kwargs.get("finalists", MIN_FINALISTS):
+            screened = _screen_others(
+                names_or_models, others, descriptions, log, report, stop, fit_kwargs
             )
-        if log is not None and others:
-            log(f"fold 1 ({descriptions[0]}): screening, then the finalists in full")
-    # One reporter for every stage: its lines add up each candidate's screenings.
-    scores = _compare_on(
-        names_or_models, first, report, stop, screened=screened, **fit_kwargs
-    )
-    if scores[0].error is not None or scores[0].result is None:
-        raise RuntimeError(
-            "every candidate failed:\n"
-            + "\n".join(f"  {s.name}: {s.error}" for s in scores)
+            stopped = [
+                s
+                for fold in screened
+                for s in fold
+                if s.result is not None and s.result.interrupted
+            ]
+            if stopped:  # interrupted: the fit under way, as the comparison's own
+                return Selection(
+                    stopped[0].name,
+                    stopped[0].result,  # pyright: ignore[reportArgumentType]  # not None
+                    screened[-1],
+                    holdout,
+                    folds=descriptions,
+                )
+            if log is not None and others:
+                log(
+                    f"fold 1 ({descriptions[0]}): screening, then the finalists in full"
+                )
+        # One reporter for every stage: its lines add up each candidate's screenings.
+        scores = _compare_on(
+            names_or_models, first, report, stop, screened=screened, **fit_kwargs
         )
-    decision = None
-    if not scores[0].result.interrupted:
-        scores, decision = _cross_validate(
-            names_or_models, scores, others, report, stop, fit_kwargs,
-            rule=dict(tolerance=tolerance, statistic=statistic),
-        )  # fmt: skip
-        if log is not None and decision is not None:
-            log(f"parsimony: {decision.reason}")
-    best = scores[0]
-    trained = best.result
-    if trained is None:  # the first is a fitted finalist (checked above)
-        raise RuntimeError(f"{best.name}: no training fit ({best.error})")
-    if trained.interrupted:
-        return Selection(best.name, trained, scores, holdout, folds=descriptions)
-    kwargs = dict(fit_kwargs)
-    kwargs.pop("finalists", None)
-    kwargs.pop("screen_steps", None)
-    kwargs.setdefault("progress", False)
-    options = dict(discard=discards, smoothing=widths, stop=stop)
+        if scores[0].error is not None or scores[0].result is None:
+            raise RuntimeError(
+                "every candidate failed:\n"
+                + "\n".join(f"  {s.name}: {s.error}" for s in scores)
+            )
+        decision = None
+        if not scores[0].result.interrupted:
+            scores, decision = _cross_validate(
+                names_or_models, scores, others, report, stop, fit_kwargs,
+                rule=dict(tolerance=tolerance, statistic=statistic),
+            )  # fmt: skip
+            if log is not None and decision is not None:
+                log(f"parsimony: {decision.reason}")
+        best = scores[0]
+        trained = best.result
+        if trained is None:  # the first is a fitted finalist (checked above)
+            raise RuntimeError(f"{best.name}: no training fit ({best.error})")
+        if trained.interrupted:
+            return Selection(best.name, trained, scores, holdout, folds=descriptions)
+        kwargs = dict(fit_kwargs)
+        kwargs.pop("finalists", None)
+        kwargs.pop("screen_steps", None)
+        kwargs.setdefault("progress", False)
+        options = dict(discard=discards, smoothing=widths, stop=stop)
 
-    def refit(stage, model, **more):
-        report(FitStarted(best.name, stage, len(everything)))
+        def refit(stage, model, **more):
+            report(FitStarted(best.name, stage, len(everything)))
+            start = time.perf_counter()
+            # `more` overrides the user's options (the chained refit runs one start).
+            result = fit(model, everything, **options, **{**kwargs, **more})
+            seconds = time.perf_counter() - start
+            median = float(np.median(result.nrmse))
+            report(_ended(best.name, stage, seconds, result, median, float("nan")))
+            return result, seconds
+
+        # From the training fit (one start: `starts` served the first search) ...
+        chained, refit_time = refit(
+            "refit",
+            trained.constrained,  # pyright: ignore[reportArgumentType]  # a fitted model
+            starts=None,
+        )
+        if chained.interrupted:
+            return Selection(
+                best.name,
+                chained,
+                scores,
+                holdout,
+                refit_time=refit_time,
+                kept="refit",
+                folds=descriptions,
+                parsimony=decision,
+            )
+        # ... and from the template's own start on all the data, as `fit` alone runs it
+        # (with the same options, `starts` included). A chained fit can end in another,
+        # worse local minimum than the template's: on 5 UTFSM files (one per amplitude
+        # and frequency, 0 to 1 A) Bouc–Wen's refit stopped after 13 steps at a loss
+        # 25 % above its template's own 35-step fit; on three 2 mm / 5 Hz tests Spencer's
+        # at 1.4 % above, with other parameters (α 534 against 274 N), and fits restarted
+        # from its end (fresh trust region and scaling) gained 0.1 % in all: a minimum,
+        # not a premature stop, so no stall rule would help. Keeping the lower loss of
+        # the two makes the selected model never worse than its template fitted alone,
+        # at the cost of that fit (it shares the refit's compiled shapes).
+        build = dict(_candidates(names_or_models, everything))[best.name]
         start = time.perf_counter()
-        # `more` overrides the user's options (the chained refit runs one start).
-        result = fit(model, everything, **options, **{**kwargs, **more})
-        seconds = time.perf_counter() - start
-        median = float(np.median(result.nrmse))
-        report(_ended(best.name, stage, seconds, result, median, float("nan")))
-        return result, seconds
-
-    # From the training fit (one start: `starts` served the first search) ...
-    chained, refit_time = refit(
-        "refit",
-        trained.constrained,  # pyright: ignore[reportArgumentType]  # a fitted model
-        starts=None,
-    )
-    if chained.interrupted:
-        return Selection(
+        try:
+            template, template_time = refit("template", build())
+        except _FIT_FAILURES as e:
+            if isinstance(e, _CODE_ERRORS):
+                raise
+            seconds = time.perf_counter() - start
+            message = f"{type(e).__name__}: {e}"
+            report(FitEnded(best.name, "template", seconds, error=message))
+            template, template_time = None, None
+        kept = (
+            "template"
+            if template is not None and _lower_loss(template, chained)
+            else "refit"
+        )
+        selection = Selection(
             best.name,
-            chained,
+            template if kept == "template" else chained,  # pyright: ignore[reportArgumentType]  # not None when kept
             scores,
             holdout,
             refit_time=refit_time,
-            kept="refit",
+            template_time=template_time,
+            kept=kept,
             folds=descriptions,
             parsimony=decision,
         )
-    # ... and from the template's own start on all the data, as `fit` alone runs it
-    # (with the same options, `starts` included). A chained fit can end in another,
-    # worse local minimum than the template's: on 5 UTFSM files (one per amplitude
-    # and frequency, 0 to 1 A) Bouc–Wen's refit stopped after 13 steps at a loss
-    # 25 % above its template's own 35-step fit; on three 2 mm / 5 Hz tests Spencer's
-    # at 1.4 % above, with other parameters (α 534 against 274 N), and fits restarted
-    # from its end (fresh trust region and scaling) gained 0.1 % in all: a minimum,
-    # not a premature stop, so no stall rule would help. Keeping the lower loss of
-    # the two makes the selected model never worse than its template fitted alone,
-    # at the cost of that fit (it shares the refit's compiled shapes).
-    build = dict(_candidates(names_or_models, everything))[best.name]
-    start = time.perf_counter()
-    try:
-        template, template_time = refit("template", build())
-    except _FIT_FAILURES as e:
-        if isinstance(e, _CODE_ERRORS):
-            raise
-        seconds = time.perf_counter() - start
-        message = f"{type(e).__name__}: {e}"
-        report(FitEnded(best.name, "template", seconds, error=message))
-        template, template_time = None, None
-    kept = (
-        "template"
-        if template is not None and _lower_loss(template, chained)
-        else "refit"
-    )
-    return Selection(
-        best.name,
-        template if kept == "template" else chained,  # pyright: ignore[reportArgumentType]  # not None when kept
-        scores,
-        holdout,
-        refit_time=refit_time,
-        template_time=template_time,
-        kept=kept,
-        folds=descriptions,
-        parsimony=decision,
-    )
+    warn_broken_constraints(selection.result.model, everything)
+    return selection
 
 
 def _compare_on(names_or_models, data, callback, stop, **kwargs) -> list[ModelScore]:
