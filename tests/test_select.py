@@ -305,10 +305,10 @@ def test_select_model_reports_typed_events_in_order(screen_folds):
         *(screenings if every else []),
         *screenings,
         *both,
-        ("FitStarted", best, "refit"),
-        ("FitEnded", best, "refit"),
         ("FitStarted", best, "template"),
         ("FitEnded", best, "template"),
+        ("FitStarted", best, "refit"),
+        ("FitEnded", best, "refit"),
     ]
     assert [e.num_experiments for e in events if isinstance(e, FitStarted)] == [
         *((3, 3, 3) if every else ()),  # the time fold's screening: all three
@@ -366,6 +366,8 @@ def test_select_model_reports_typed_events_in_order(screen_folds):
     assert finalist.mean_test_nrmse == pytest.approx(np.mean(finalist.test_nrmse))
     assert selection.refit_time == ended[best, "refit"].seconds
     assert selection.template_time == ended[best, "template"].seconds
+    # The refit from the training fit gets as many steps as the template's own fit.
+    assert ended[best, "refit"].num_steps <= ended[best, "template"].num_steps
     # The selection is the lower loss of the two fits on every experiment.
     kept = ended[best, selection.kept]
     assert (
@@ -430,13 +432,13 @@ def test_select_model_reports_typed_events_in_order(screen_folds):
     assert lines[14] == f"parsimony: {rule.reason}"
     assert (
         lines[15]
-        == f"selected {best}; refitting on all 3 experiment(s) from its training fit..."
+        == f"selected {best}; fitting it on all 3 experiment(s) from its own start..."
     )
-    assert lines[16].endswith(f"(refit); {ended[best, 'refit'].outcome}")
+    assert lines[16].endswith(f"(template); {ended[best, 'template'].outcome}")
     assert lines[17].startswith(
-        f"{best}: fit on all 3 experiment(s) from its own start"
+        f"{best}: refit on all 3 experiment(s) from its training fit, for as many steps"
     )
-    assert lines[18].endswith(f"(template); {ended[best, 'template'].outcome}")
+    assert lines[18].endswith(f"(refit); {ended[best, 'refit'].outcome}")
     assert len(lines) == 19
 
 

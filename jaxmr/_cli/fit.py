@@ -482,10 +482,10 @@ def _select(args, experiments: list, options: dict, log: "_FitLog"):
         raise CLIError(str(e)) from e
     print(f"({selection.holdout})")
     print(jaxmr.scores.score_table(selection.scores))
-    if selection.kept == "template":
+    if selection.kept == "refit":
         print(
-            f"kept {selection.name}'s fit from its own start: a lower loss than its "
-            "refit from the training fit"
+            f"kept {selection.name}'s refit from its training fit: a lower loss than "
+            "its fit from its own start"
         )
     return selection
 

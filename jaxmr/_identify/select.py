@@ -104,15 +104,15 @@ class _LogLines:
         screened = stage == "full" and name in self.screening
         if isinstance(event, FitStarted):
             n = event.num_experiments
-            if stage == "refit":
+            if stage == "template":
                 self.log(
-                    f"selected {name}; refitting on all {n} experiment(s) from its "
-                    "training fit..."
+                    f"selected {name}; fitting it on all {n} experiment(s) from its "
+                    "own start..."
                 )
-            elif stage == "template":
+            elif stage == "refit":
                 self.log(
-                    f"{name}: fit on all {n} experiment(s) from its own start (the "
-                    "lower loss of the two is kept)..."
+                    f"{name}: refit on all {n} experiment(s) from its training fit, "
+                    "for as many steps (the lower loss of the two is kept)..."
                 )
             elif stage == "cv":
                 self.log(
@@ -784,9 +784,10 @@ class Selection:
     - `name`: the selected candidate (the parsimony rule's choice).
     - `result`: its `FitResult` on all the experiments (training and held-out): of
       two fits, the one with the lower loss, so never worse than the candidate fitted
-      alone with `fit` and the same options: the refit from its training fit
-      (`kept == "refit"`) and the fit from the candidate's own start, its template
-      built on all the experiments (`kept == "template"`).
+      alone with `fit` and the same options: the fit from the candidate's own
+      start, its template built on all the experiments (`kept == "template"`), and
+      the refit from its training fit, given as many steps as that fit took
+      (`kept == "refit"`, where its loss is lower).
     - `scores`: the ranking: `compare_models`' on the first fold, the finalists'
       held-out errors pooled over every fold, the chosen one first.
     - `holdout`: how the held-out data were chosen, in words (the folds joined
@@ -1346,33 +1347,18 @@ def select_model(
             report(_ended(best.name, stage, seconds, result, median, float("nan")))
             return result, seconds
 
-        # From the training fit (one start: `starts` served the first search) ...
-        chained, refit_time = refit(
-            "refit",
-            trained.constrained,  # pyright: ignore[reportArgumentType]  # a fitted model
-            starts=None,
-        )
-        if chained.interrupted:
-            return Selection(
-                best.name,
-                chained,
-                scores,
-                holdout,
-                refit_time=refit_time,
-                kept="refit",
-                folds=descriptions,
-                parsimony=decision,
-            )
-        # ... and from the template's own start on all the data, as `fit` alone runs it
-        # (with the same options, `starts` included). A chained fit can end in another,
-        # worse local minimum than the template's: on 5 UTFSM files (one per amplitude
-        # and frequency, 0 to 1 A) Bouc–Wen's refit stopped after 13 steps at a loss
-        # 25 % above its template's own 35-step fit; on three 2 mm / 5 Hz tests Spencer's
-        # at 1.4 % above, with other parameters (α 534 against 274 N), and fits restarted
-        # from its end (fresh trust region and scaling) gained 0.1 % in all: a minimum,
-        # not a premature stop, so no stall rule would help. Keeping the lower loss of
-        # the two makes the selected model never worse than its template fitted alone,
-        # at the cost of that fit (it shares the refit's compiled shapes).
+        # The template's own start on all the data first, as `fit` alone runs it
+        # (with the same options, `starts` included): the selection is never worse
+        # than that fit. Then the chained refit from the training fit (one start:
+        # `starts` served the first search), given as many steps as the template's
+        # fit took, replaces it where it reaches a lower loss. A chained fit can end
+        # in another, worse local minimum than the template's: on 5 UTFSM files
+        # (one per amplitude and frequency, 0 to 1 A) Bouc–Wen's refit stopped after
+        # 13 steps at a loss 25 % above its template's own 35-step fit; on three
+        # 2 mm / 5 Hz tests Spencer's at 1.4 % above. And it can crawl: on the 30
+        # UTFSM files the shear-thinning Spencer's took 93 steps (148 s) to the loss
+        # its template's fit reached in 27 (50 s), along a direction the data do not
+        # determine (2026-11-28). The two share their compiled shapes.
         build = dict(_candidates(names_or_models, everything))[best.name]
         start = time.perf_counter()
         try:
@@ -1384,10 +1370,28 @@ def select_model(
             message = f"{type(e).__name__}: {e}"
             report(FitEnded(best.name, "template", seconds, error=message))
             template, template_time = None, None
+        if template is not None and template.interrupted:
+            return Selection(
+                best.name,
+                template,
+                scores,
+                holdout,
+                template_time=template_time,
+                kept="template",
+                folds=descriptions,
+                parsimony=decision,
+            )
+        budget = {} if template is None else {"max_steps": max(template.num_steps, 1)}
+        chained, refit_time = refit(
+            "refit",
+            trained.constrained,  # pyright: ignore[reportArgumentType]  # a fitted model
+            starts=None,
+            **budget,
+        )
         kept = (
-            "template"
-            if template is not None and _lower_loss(template, chained)
-            else "refit"
+            "refit"
+            if template is None or _lower_loss(chained, template)
+            else "template"
         )
         selection = Selection(
             best.name,
