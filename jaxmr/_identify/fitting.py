@@ -274,8 +274,7 @@ def warn_broken_constraints(model, experiments) -> list[str]:
         f"{BROKEN_CONSTRAINTS}: "
         + "; ".join(broken)
         + ". Its simulations will refuse it: constrain those parameters "
-        "(jaxmr.Positive, jaxmr.Bounded), as jaxmr.templates does, or check the "
-        "data.",
+        "(jaxmr.Positive, jaxmr.Bounded) or their law, or check the data.",
         UserWarning,
         stacklevel=3,
     )
