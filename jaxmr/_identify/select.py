@@ -793,8 +793,8 @@ class Selection:
     - `holdout`: how the held-out data were chosen, in words (the folds joined
       with "; ").
     - `refit_time`, `template_time`: the wall time [s] of each of those two fits,
-      compilation included (`None` for a fit not made: the comparison or the refit
-      was interrupted, or the template's fit failed).
+      compilation included (`None` for a fit not made: the comparison or the
+      template's fit was interrupted, or the template's fit failed).
     - `kept`: which of the two `result` is, `"refit"` or `"template"` (the stages
       of their `FitEnded` events); `None` when the comparison was interrupted and
       `result` is the training fit.
