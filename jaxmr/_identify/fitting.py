@@ -251,10 +251,12 @@ def warn_broken_constraints(model, experiments) -> list[str]:
     only at inputs below zero (an amplifier's offset or noise on a current or
     command channel), the warning says so: there the advice is to clip the input,
     not to constrain the parameters."""
-    broken = broken_constraints(model, experiments)
+    if not experiments:
+        return []
+    inputs = _inputs(experiments)
+    broken = _broken_over(model, inputs.min(), inputs.max())
     if not broken:
         return broken
-    inputs = _inputs(experiments)
     if inputs.min() < 0 <= inputs.max():
         if not _broken_over(model, 0.0, inputs.max()):
             below = int(np.sum(inputs < 0))

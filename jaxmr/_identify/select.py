@@ -1230,10 +1230,10 @@ def select_model(
       then of `test`, in that order), as `fit`'s (`None`: each experiment's own).
 
     **Returns:** a `Selection`: the chosen candidate fitted on the training and
-    held-out experiments together, twice (from its training fit, and from its own
-    start as `fit` alone would: the lower loss is kept), the ranking (the chosen
-    candidate first, then the other finalists by mean pooled held-out NRMSE) and
-    the rule's decision (`Selection.parsimony`). Of the fits along the way, only
+    held-out experiments together, twice (from its own start as `fit` alone would,
+    then from its training fit for as many steps: the lower loss is kept), the
+    ranking (the chosen candidate first, then the other finalists by mean pooled
+    held-out NRMSE) and the rule's decision (`Selection.parsimony`). Of the fits along the way, only
     the model handed back warns where it breaks its own constraints (as `fit`
     does), once.
 
