@@ -55,9 +55,9 @@ _KNOWN_MODULES = ("jaxmr", "builtins", *_LIBRARIES)
 def traced_programs_in(folder: str | os.PathLike | None):
     """Within the block, keep the fit's traced programs in `folder` and read them back
     from there: a later process (a second `jaxmr fit` of files of the same shapes)
-    then skips tracing the model for the solver's step, the reported simulation and
-    the statistics' Jacobian, about 0.8 s of a 14-parameter fit's 1.5 s of
-    compilation with a warm compilation cache. None: keep none. The previous setting
+    then skips tracing the model for the solver's initial state and step, the
+    reported simulation and the statistics' Jacobian, about 0.8 s of a
+    14-parameter fit's 1.5 s of compilation with a warm compilation cache. None: keep none. The previous setting
     comes back after the block.
 
     Pair it with JAX's persistent compilation cache (`jax_compilation_cache_dir`),

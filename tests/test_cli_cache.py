@@ -99,10 +99,10 @@ def test_a_second_fit_reads_the_first_ones_programs(tmp_path):
     assert f"compilation cache: {folder}" in first.stdout.splitlines()
     written = _entries(folder)
     assert written, "the first fit stored no compiled program"
-    # And its traced programs (`jaxmr._traced`): the step, the reported simulation,
-    # the statistics' Jacobian.
+    # And its traced programs (`jaxmr._traced`): the solver's initial state and its
+    # step, the reported simulation, the statistics' Jacobian.
     programs = sorted((folder / cache.PROGRAMS).glob("*.jaxexport"))
-    assert len(programs) == 3, programs
+    assert len(programs) == 4, programs
     # The second, with the folder from JAXMR_COMPILATION_CACHE.
     second = subprocess.run(
         [sys.executable, "-c", _COUNTING_RUN, *fit, "--out", str(tmp_path / "b.json")],
@@ -118,8 +118,10 @@ def test_a_second_fit_reads_the_first_ones_programs(tmp_path):
     # Every program the first fit stored was read back, and none compiled anew.
     assert events["hits"] >= len(written), (events, len(written))
     assert _entries(folder) == written
-    # Nor was the model traced for them: they were read back.
-    kept = {"_step", "simulate", "value_and_jacobian_jit"}
+    # Nor was the model traced for them (`traced_once`: its residual, which the
+    # solver's initial state needed for its length): they were read back.
+    kept = {"_initial_states", "_step", "simulate", "value_and_jacobian_jit"}
+    kept |= {"traced_once"}
     assert not kept & set(events["traced"]), events["traced"]
     assert sorted((folder / cache.PROGRAMS).glob("*.jaxexport")) == programs
     # The same fit: the same parameters.

@@ -151,7 +151,7 @@ def test_a_fit_and_the_tuners_trace_each_step_once_on_two_host_devices():
     )
     counts = json.loads(printed.strip().splitlines()[-1])
     for function in (
-        "_init",
+        "_initial_states",
         "_step",
         "loss_and_grad",
         "losses",

@@ -4,8 +4,8 @@ usual and never written; a static value of another value is another program; a
 damaged file is ignored and written again.
 
 One small Dahl fit (two runs of 41 samples, 2 steps) serves every test: a fit calls
-all three kept programs (the solver's step, the reported simulation, the statistics'
-Jacobian)."""
+all four kept programs (the solver's initial state and its step, the reported
+simulation, the statistics' Jacobian)."""
 
 import functools
 
@@ -47,8 +47,9 @@ def test_a_program_read_back_gives_the_same_bits(tmp_path, fresh_memory, monkeyp
     with _traced.traced_programs_in(tmp_path):
         first = _fit()
     kept = _kept(tmp_path)
-    # The step, the reported simulation and the statistics' Jacobian.
-    assert len(kept) == 3, kept
+    # The solver's initial state and its step, the reported simulation and the
+    # statistics' Jacobian.
+    assert len(kept) == 4, kept
     # A later process: nothing in memory, nothing exported again (it would raise).
     monkeypatch.setattr(_traced, "_MEMORY", {})
 
@@ -146,8 +147,8 @@ def test_fit_each_s_chunked_step_is_kept_and_gives_the_same_bits(
     with _traced.traced_programs_in(tmp_path):
         first = values()
     kept = _kept(tmp_path)
-    # The column scale's Jacobian and the chunked step.
-    assert len(kept) == 2, kept
+    # The column scale's Jacobian, the chunked initial state and step.
+    assert len(kept) == 3, kept
     _traced._MEMORY.clear()
     with _traced.traced_programs_in(tmp_path):
         again = values()

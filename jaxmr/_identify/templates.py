@@ -239,11 +239,16 @@ def _law(at_min: float, at_max: float, scales: DataScales):
     level."""
     if not scales.varying_current:
         return Positive(max(at_min, at_max))
+    return LinearLaw(*map(Positive, _line(at_min, at_max, scales)))
+
+
+def _line(at_min: float, at_max: float, scales: DataScales) -> tuple[float, float]:
+    """`_law`'s intercept and slope (numbers, both positive), for varying input."""
     span = scales.current_max - scales.current_min
     top = max(at_min, at_max)
     slope = max((at_max - at_min) / span, FLOOR * top / span)
     intercept = max(at_min - slope * scales.current_min, FLOOR * top)
-    return LinearLaw(Positive(intercept), Positive(slope))
+    return intercept, slope
 
 
 def bingham(experiments: Sequence) -> Bingham:
@@ -379,8 +384,9 @@ def _curved_law(at_min: float, at_max: float, scales: DataScales):
     positive constant with one input level."""
     if not scales.varying_current:
         return Positive(max(at_min, at_max))
-    linear = _law(at_min, at_max, scales)
-    a, b = float(linear.a.value()), float(linear.b.value())  # pyright: ignore[reportAttributeAccessIssue]  # a LinearLaw of Positive
+    # The line's numbers, not its `Positive`s' values: each `.value()` an eager
+    # program compiled in a fresh process.
+    a, b = _line(at_min, at_max, scales)
     return PolynomialLaw(np.array([a, b, 0.0]))
 
 
