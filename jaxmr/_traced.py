@@ -57,8 +57,8 @@ def traced_programs_in(folder: str | os.PathLike | None):
     from there: a later process (a second `jaxmr fit` of files of the same shapes)
     then skips tracing the model for the solver's initial state and step, the
     reported simulation and the statistics' Jacobian, about 0.8 s of a
-    14-parameter fit's 1.5 s of compilation with a warm compilation cache. None: keep none. The previous setting
-    comes back after the block.
+    14-parameter fit's 1.5 s of compilation with a warm compilation cache. None:
+    keep none. The previous setting comes back after the block.
 
     Pair it with JAX's persistent compilation cache (`jax_compilation_cache_dir`),
     which keeps what these programs compile to. A program is kept only when every
