@@ -121,7 +121,7 @@ def test_a_second_fit_reads_the_first_ones_programs(tmp_path):
     # Nor was the model traced for them (`traced_once`: its residual, which the
     # solver's initial state needed for its length): they were read back.
     kept = {"_initial_states", "_step", "simulate", "value_and_jacobian_jit"}
-    kept |= {"traced_once"}
+    kept.add("traced_once")
     assert not kept & set(events["traced"]), events["traced"]
     assert sorted((folder / cache.PROGRAMS).glob("*.jaxexport")) == programs
     # The same fit: the same parameters.

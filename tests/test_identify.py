@@ -382,6 +382,41 @@ def test_a_model_broken_only_below_zero_input_says_to_clip_the_input():
     assert "constrain those parameters" not in message
 
 
+def test_the_constraint_check_compiles_once_whatever_the_fitted_range():
+    """The check after a fit (`broken_constraints`) is one compiled program per
+    model structure. A model's fitted range is a static field of its pytree: a
+    loaded model, or one fitted on other data, compiled the check again for each
+    range, as the simulations would have had they not left it out."""
+    import jax
+
+    import jaxmr.data
+    from jaxmr import FittedRange, with_fitted_range
+    from jaxmr._identify.fitting import broken_constraints
+
+    t = np.linspace(0.0, 0.1, 101)
+    runs = [
+        jaxmr.data.Experiment(t, 0.1 * t, 0.1 + 0 * t, i, 100 + 0 * t, name=f"{i} A")
+        for i in (0.0, 1.0)
+    ]
+    model = jaxmr.Bingham(jaxmr.LinearLaw(-5.0, 300.0), 400.0)  # f_c < 0 at 0 A
+    traced = []
+
+    def count(event, seconds, fun_name="", **kwargs):
+        if event.endswith("jaxpr_trace_duration") and fun_name == "_checks_over":
+            traced.append(fun_name)
+
+    jax.monitoring.register_event_duration_secs_listener(count)
+    try:
+        messages = [
+            broken_constraints(with_fitted_range(model, r), runs)
+            for r in (None, *(FittedRange.from_experiments(runs[:k]) for k in (1, 2)))
+        ]
+    finally:
+        jax.monitoring.unregister_event_duration_listener(count)
+    assert messages[0] and all(m == messages[0] for m in messages), messages
+    assert len(traced) <= 1, traced  # 0 where an earlier test compiled it
+
+
 def test_a_parameter_at_a_mode_of_its_model_is_left_alone():
     """Bingham's `velocity_scale` of 0 (its default) is the exact sign, a form of the
     model rather than a size: the force does not change with it there. A fit of a

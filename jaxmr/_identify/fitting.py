@@ -229,6 +229,8 @@ def _broken_over(model, lo: float, hi: float) -> list[str]:
     hysteresis = device.hysteresis if isinstance(device, Damper) else device
     if not isinstance(hysteresis, AbstractHysteresis):
         return []
+    # Off the model (a static field), as `predict_all` does: one program per structure.
+    hysteresis = with_fitted_range(hysteresis, None)
     checks = _checks_over(hysteresis, jnp.asarray(lo), jnp.asarray(hi))
     return [c.message().rstrip(".") for c in checks if not np.asarray(c.ok).all()]
 

@@ -1233,9 +1233,9 @@ def select_model(
     held-out experiments together, twice (from its own start as `fit` alone would,
     then from its training fit for as many steps: the lower loss is kept), the
     ranking (the chosen candidate first, then the other finalists by mean pooled
-    held-out NRMSE) and the rule's decision (`Selection.parsimony`). Of the fits along the way, only
-    the model handed back warns where it breaks its own constraints (as `fit`
-    does), once.
+    held-out NRMSE) and the rule's decision (`Selection.parsimony`). Of the fits
+    along the way, only the model handed back warns where it breaks its own
+    constraints (as `fit` does), once.
 
     **Raises:** `RuntimeError` when every candidate failed.
     """
