@@ -98,6 +98,7 @@ if TYPE_CHECKING:
         ProgressPrinter as ProgressPrinter,
         Selection as Selection,
         StepPolicy as StepPolicy,
+        StepsRefined as StepsRefined,
         StopReason as StopReason,
         SystemRecord as SystemRecord,
         compare_models as compare_models,

@@ -1279,12 +1279,25 @@ def test_a_state_that_leaves_its_bounds_is_a_failure_not_a_force(
     files, tmp_path, capsys
 ):
     """A Dahl model whose state relaxes within 1 µm (rho = 1e6 1/m): the default steps
-    of 25 µm travel are 25 relaxation lengths, RK4 overshoots |z| <= 1 and diverges.
-    `predict` and `report` fail naming the experiment and the time instead of writing
-    forces or a report of them."""
+    of 25 µm travel are 25 relaxation lengths, RK4 overshoots |z| <= 1 and diverges;
+    `predict` runs it again with 16 times shorter steps (1.6 µm), says so, and writes
+    forces within the model's reach. Within 0.01 µm (rho = 1e8) even those diverge:
+    `predict` and `report` fail naming the experiment and the time instead of
+    writing forces or a report of them."""
     params = tmp_path / "stiff.json"
     jaxmr.save_model(jaxmr.Dahl(k_x=800.0, k_w=500.0, rho=1e6), params)
     out = tmp_path / "pred.csv"
+    assert main([str(a) for a in ["predict", params, files[1], "--out", out]]) == 0
+    assert "(16x) diverged with the step policy's steps" in capsys.readouterr().err
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", jaxmr.data.DataWarning)
+        written = jaxmr.data.read_csv(out)
+    # 1 % slack: RK4's own overshoot of the saturating state.
+    reach = 800.0 * np.max(np.abs(written.v)) + 500.0 * 1.01
+    assert np.max(np.abs(np.asarray(written.force))) <= reach
+    out.unlink()
+    params = tmp_path / "stiffer.json"
+    jaxmr.save_model(jaxmr.Dahl(k_x=800.0, k_w=500.0, rho=1e8), params)
     err = _error(["predict", params, files[1], "--out", out], capsys)
     assert f"the simulation of {files[1]} (experiment " in err
     assert "diverged at t = " in err and not out.exists()

@@ -455,10 +455,54 @@ def test_steps_follow_the_interpolated_motion_and_a_diverged_state_is_nan():
     assert np.all(np.isfinite(predicted)) and np.max(np.abs(predicted)) <= reach
     # One step per interval: the state leaves its bound at the step (it gave forces
     # of 2.6e10 N before the guard).
-    (coarse,) = jaxmr.predict_all(dahl, [e], integrator=StepPolicy(substeps=1))
+    (coarse,) = jaxmr.predict_all(
+        dahl, [e], integrator=StepPolicy(substeps=1), refine_diverged=False
+    )
     bad = ~np.isfinite(coarse)
     assert np.all(np.isfinite(coarse[: k + 1])) and np.all(bad[k + 2 :])
     assert np.max(np.abs(coarse[: k + 1])) <= reach
+
+
+def test_a_diverged_prediction_is_run_again_with_shorter_steps():
+    """A Dahl state that relaxes within 1 µm (rho = 1e6 1/m) overshoots |z| <= 1 with
+    the default 25 µm steps; `predict_all` runs that experiment again with 4, then
+    16 times shorter steps (1.6 µm: rho·h = 1.6, inside RK4's stability limit of
+    2.8), says so once, naming it, and leaves the experiment that did not diverge
+    (a damper at rest) as its first run gave it. The band's centre takes the same
+    steps."""
+    t = np.arange(0.0, 0.4, 1e-3)
+    w = 2 * np.pi * 3.0
+    sine = SimpleNamespace(
+        t=t,
+        x=5e-3 * np.sin(w * t),
+        v=5e-3 * w * np.cos(w * t),
+        current=np.zeros_like(t),
+        name="sine",
+    )
+    still = SimpleNamespace(t=t, x=0 * t, v=0 * t, current=0 * t, name="still")
+    dahl = jaxmr.Dahl(k_x=500.0, k_w=800.0, rho=1e6)
+    raw = jaxmr.predict_all(dahl, [sine, still], refine_diverged=False)
+    assert not np.all(np.isfinite(raw[0])) and np.all(np.isfinite(raw[1]))
+    with pytest.warns(jaxmr.StepsRefined) as caught:
+        refined = jaxmr.predict_all(dahl, [sine, still])
+    assert len(caught) == 1 and "'sine' (16x)" in str(caught[0].message)
+    assert "still" not in str(caught[0].message)
+    (finer,) = jaxmr.predict_all(dahl, [sine], integrator=StepPolicy(refinement=16))
+    # The same program on the same steps: equal to the last bit.
+    np.testing.assert_array_equal(refined[0], finer)
+    np.testing.assert_array_equal(refined[1], raw[1])
+    # |F| <= k_x |v| + k_w |z|, |z| <= 1 (1 % slack: RK4's own overshoot).
+    assert np.max(np.abs(finer)) <= 500.0 * np.max(np.abs(sine.v)) + 800.0 * 1.01
+    with pytest.warns(jaxmr.StepsRefined):
+        bands = jaxmr.prediction_band_from_covariance(
+            dahl, [".k_w"], [[25.0]], [sine, still]
+        )
+    # The band's centre is the forward-mode pass's force, the prediction's to
+    # rounding (1e-9 of the peak force).
+    np.testing.assert_allclose(bands[0].force, finer, rtol=0, atol=1e-9 * 1e3)
+    # d F / d k_w = z: the band's half-width is 1.96 · 5 · |z|, at most 9.9 N.
+    assert np.all(np.isfinite(bands[0].std)) and np.max(bands[0].std) <= 5 * 1.01
+    assert np.max(bands[0].std) >= 4.9
 
 
 def test_a_state_relaxing_to_a_bound_that_shrank_with_the_input_is_no_divergence():

@@ -34,6 +34,7 @@ from .saved import (
     save_fit as save_fit,
 )
 from .score import (
+    StepsRefined as StepsRefined,
     moving_average as moving_average,
     nrmse as nrmse,
     predict as predict,

@@ -22,9 +22,17 @@ from .._channel import ChannelDelay
 from .._damper import Damper
 from .._hysteresis import AbstractHysteresis
 from .._integrate import FixedStep
-from .data import StepPolicy, as_step_policy, experiment_list, pack
+from .data import (
+    StepPolicy,
+    as_step_policy,
+    experiment_list,
+    experiment_name,
+    pack,
+    per_experiment,
+)
 from .residual import residuals
 from .result import FitResult, jacobian_matrix
+from .score import with_finer_steps
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -157,30 +165,38 @@ def prediction_band_from_covariance(
     experiments = experiment_list(experiments)
     if not experiments:
         return []
-    # Every sample scored (`discard=0`): the band covers the discarded start as well,
-    # where `predict` predicts too.
-    data = pack(
-        experiments,
-        as_step_policy(integrator),
-        weighting="force",
-        discard=0.0,
-        smoothing=smoothing,
-        need_force=False,
-    )
-    # With no measured force (zeros, whatever the experiments hold) and unit weights the residual is the predicted
-    # force itself, and its Jacobian (with respect to the plain values, the
-    # covariance's coordinates) the force's sensitivity to the parameters.
-    data = eqx.tree_at(lambda d: d.force, data, jnp.zeros_like(data.force))
-    force, J = jacobian_matrix(residuals, free, static, data, None)
     cov = cov[np.ix_(order, order)]
-    variance = np.einsum("ki,ij,kj->k", J, cov, J)
-    std = np.sqrt(np.maximum(variance, 0.0))
+    widths = per_experiment(smoothing, experiments, "smoothing")
+
+    def run(indices: list[int], steps: StepPolicy) -> list[tuple]:
+        # Every sample scored (`discard=0`): the band covers the discarded start as
+        # well, where `predict` predicts too.
+        data = pack(
+            [experiments[k] for k in indices],
+            steps,
+            weighting="force",
+            discard=0.0,
+            smoothing=widths[indices],
+            need_force=False,
+        )
+        # With no measured force (zeros, whatever the experiments hold) and unit
+        # weights the residual is the predicted force itself, and its Jacobian (with
+        # respect to the plain values, the covariance's coordinates) the force's
+        # sensitivity to the parameters.
+        data = eqx.tree_at(lambda d: d.force, data, jnp.zeros_like(data.force))
+        force, J = jacobian_matrix(residuals, free, static, data, None)
+        variance = np.einsum("ki,ij,kj->k", J, cov, J)
+        std = np.sqrt(np.maximum(variance, 0.0))
+        return list(zip(data.split(force), data.split(std)))
+
+    # The steps `predict_all` takes, so that the band's centre is its prediction
+    # where a simulation diverged with the policy's steps too.
+    names = [experiment_name(e, k) for k, e in enumerate(experiments)]
+    results = with_finer_steps(run, names, as_step_policy(integrator))
     z = NormalDist().inv_cdf(0.5 + level / 2)
     return [
-        PredictionBand(name, t, f, s, f - z * s, f + z * s, level)
-        for name, t, f, s in zip(
-            data.names, data.split(data.t), data.split(force), data.split(std)
-        )
+        PredictionBand(name, np.asarray(e.t, float), f, s, f - z * s, f + z * s, level)
+        for name, e, (f, s) in zip(names, experiments, results)
     ]
 
 

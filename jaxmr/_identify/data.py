@@ -311,8 +311,13 @@ def per_experiment(
     return array
 
 
+def experiment_name(e, k: int) -> str:
+    """The name of experiment `e`, the `k`-th of its list: its own, or its place."""
+    return str(getattr(e, "name", f"experiment {k}"))
+
+
 def _columns(e, k: int, need_force: bool):
-    name = str(getattr(e, "name", f"experiment {k}"))
+    name = experiment_name(e, k)
     t, x, v = (np.asarray(getattr(e, key), dtype=float) for key in ("t", "x", "v"))
     i = np.broadcast_to(np.asarray(e.current, dtype=float), t.shape)
     force = getattr(e, "force", None)
