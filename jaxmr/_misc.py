@@ -214,3 +214,25 @@ def rk4_step(vector_field: Callable, t, y, h, args):
     r"""One classical RK4 step of $\dot y = f(t, y, \mathrm{args})$ from time `t` [s]
     with step `h` [s] (`rk4_stages` with the time as the stage's input)."""
     return rk4_stages(lambda y, s: vector_field(s, y, args), y, h, t, t + h / 2, t + h)
+
+
+# The packages whose frames lie between a user's call and a warning: jaxmr, and
+# the libraries that build and check its modules (equinox runs `__check_init__`;
+# jaxtyping and beartype wrap functions when runtime type checking is on).
+_INTERNAL = ("jaxmr", "equinox", "jaxtyping", "beartype", "typeguard")
+
+
+def user_stacklevel(frame) -> int:
+    """The `stacklevel` for `warnings.warn` called in `frame` that points at the first
+    frame outside `_INTERNAL`: the user's line (that read the file, built the
+    experiment or predicted), not equinox's line that runs `__check_init__` or a
+    jaxmr function's that called the one warning (a fixed level cannot be
+    right: the number of frames between depends on the path taken, and on runtime type
+    checking's wrappers)."""
+    level = 1
+    while frame is not None:
+        package = frame.f_globals.get("__name__", "").partition(".")[0]
+        if package not in _INTERNAL:
+            break
+        frame, level = frame.f_back, level + 1
+    return level

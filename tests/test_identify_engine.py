@@ -486,6 +486,7 @@ def test_a_diverged_prediction_is_run_again_with_shorter_steps():
     with pytest.warns(jaxmr.StepsRefined) as caught:
         refined = jaxmr.predict_all(dahl, [sine, still])
     assert len(caught) == 1 and "'sine' (16x)" in str(caught[0].message)
+    assert caught[0].filename == __file__  # the caller's line, not jaxmr's
     assert "still" not in str(caught[0].message)
     (finer,) = jaxmr.predict_all(dahl, [sine], integrator=StepPolicy(refinement=16))
     # The same program on the same steps: equal to the last bit.

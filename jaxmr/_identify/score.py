@@ -5,6 +5,7 @@ RMSE/std(F), the figure every dataset's authors quote.
 NumPy in, NumPy out (not jit-able): the layer around the models, like `jaxmr.data`.
 """
 
+import sys
 import warnings
 from collections.abc import Callable, Sequence
 
@@ -12,6 +13,7 @@ import numpy as np
 
 from .._damper import with_fitted_range
 from .._integrate import FixedStep
+from .._misc import user_stacklevel
 from .data import (
     StepPolicy,
     as_step_policy,
@@ -69,7 +71,7 @@ def with_finer_steps(
             "changes over less travel than a step (a fit with shorter steps, e.g. "
             "StepPolicy(max_travel=5e-6), would resolve it throughout)",
             StepsRefined,
-            stacklevel=3,
+            stacklevel=user_stacklevel(sys._getframe()),
         )
     return results
 

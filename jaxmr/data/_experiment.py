@@ -14,7 +14,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._custom_types import Array, ArrayLike, Float
-from .._misc import as_float_array, is_concrete
+from .._misc import as_float_array, is_concrete, user_stacklevel
 from .._signal import Constant, Sampled
 
 # Plain lists are accepted as well as arrays: measured columns often arrive as lists.
@@ -150,27 +150,6 @@ def named_by_file(path: str | os.PathLike) -> Iterator[None]:
         _SOURCE.reset(token)
 
 
-# The packages whose frames lie between a user's call and a unit warning: jaxmr, and
-# the libraries that build and check its modules (equinox runs `__check_init__`;
-# jaxtyping and beartype wrap functions when runtime type checking is on).
-_INTERNAL = ("jaxmr", "equinox", "jaxtyping", "beartype", "typeguard")
-
-
-def _user_stacklevel(frame) -> int:
-    """The `stacklevel` for `warnings.warn` called in `frame` that points at the first
-    frame outside `_INTERNAL`: the user's line that read the file or built the
-    experiment, not equinox's line that runs `__check_init__` (a fixed level cannot be
-    right: the number of frames between depends on the path taken, and on runtime type
-    checking's wrappers)."""
-    level = 1
-    while frame is not None:
-        package = frame.f_globals.get("__name__", "").partition(".")[0]
-        if package not in _INTERNAL:
-            break
-        frame, level = frame.f_back, level + 1
-    return level
-
-
 def _seconds(name: str, value) -> float:
     """A processing duration [s]: a finite number >= 0."""
     try:
@@ -293,7 +272,7 @@ def warn_implausible_units(
             DataWarning(
                 f"{where}: {message}", kind="unit", column=column, suggested=suggested
             ),
-            stacklevel=_user_stacklevel(sys._getframe()),
+            stacklevel=user_stacklevel(sys._getframe()),
         )
 
     dt = float(np.median(np.diff(t)))
@@ -346,7 +325,7 @@ def warn_implausible_units(
                     kind="noise",
                     column=velocity,
                 ),
-                stacklevel=_user_stacklevel(sys._getframe()),
+                stacklevel=user_stacklevel(sys._getframe()),
             )
     # The displacement's derivative, for the velocity column's sign and unit checks.
     derivative = np.gradient(x, t) if velocity_measured else None
@@ -361,7 +340,7 @@ def warn_implausible_units(
                 kind="sign",
                 column=velocity,
             ),
-            stacklevel=_user_stacklevel(sys._getframe()),
+            stacklevel=user_stacklevel(sys._getframe()),
         )
         # The force's sign is then judged against a reversed velocity: left out, so
         # that the one warning names the column to fix.
@@ -409,7 +388,7 @@ def _warn_force_sign(v, force, load, velocity, where) -> None:
             kind="sign",
             column=load,
         ),
-        stacklevel=_user_stacklevel(sys._getframe()),
+        stacklevel=user_stacklevel(sys._getframe()),
     )
 
 
@@ -446,7 +425,7 @@ def _warn_motion_steps(t, x, v, position, velocity, rotary, where) -> None:
             column=which,
             time=float(t[k]),
         ),
-        stacklevel=_user_stacklevel(sys._getframe()),
+        stacklevel=user_stacklevel(sys._getframe()),
     )
 
 
