@@ -1295,6 +1295,9 @@ def test_a_state_that_leaves_its_bounds_is_a_failure_not_a_force(
     # 1 % slack: RK4's own overshoot of the saturating state.
     reach = 800.0 * np.max(np.abs(written.v)) + 500.0 * 1.01
     assert np.max(np.abs(np.asarray(written.force))) <= reach
+    # The file says how it was made.
+    header = [line for line in out.read_text().splitlines() if line.startswith("#")]
+    assert any("(16x) diverged with the step policy's steps" in h for h in header)
     out.unlink()
     params = tmp_path / "stiffer.json"
     jaxmr.save_model(jaxmr.Dahl(k_x=800.0, k_w=500.0, rho=1e8), params)

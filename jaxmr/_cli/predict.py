@@ -96,8 +96,14 @@ def run(args: argparse.Namespace) -> int:
     beyond = beyond_range(fitted, args.file, experiment)
     if beyond is not None:
         warnings.warn(beyond, UserWarning, stacklevel=2)
-    # Through the experiment's own smoothing (`Experiment.smoothing`).
-    (predicted,) = jaxmr.predict_all(model, [experiment])
+    # Through the experiment's own smoothing (`Experiment.smoothing`). A rerun with
+    # shorter steps (`jaxmr.StepsRefined`) is said, and written into the file.
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        (predicted,) = jaxmr.predict_all(model, [experiment])
+    for w in caught:
+        warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+    refined = [str(w.message) for w in caught if w.category is jaxmr.StepsRefined]
     if not np.all(np.isfinite(predicted)):
         raise CLIError(diverged_message(args.file, experiment, predicted))
     # Rebuilding checks the data again: its warnings were said, naming the file, when
@@ -145,6 +151,8 @@ def run(args: argparse.Namespace) -> int:
         )
     if beyond is not None:
         comment += f"\nwarning: {beyond}"
+    for text in refined:
+        comment += f"\nwarning: {text}"
     if experiment.force is not None:
         comment += (
             f"\n{load}_measured: the {'torque' if experiment.rotary else 'force'} "
