@@ -189,8 +189,9 @@ def diverged_message(path, experiment, predicted) -> str:
     t = float(np.asarray(experiment.t)[first])
     return (
         f"the simulation of {path} (experiment {experiment.name!r}) diverged at "
-        f"t = {t:g} s: the model's state left its bounds or stopped being finite, so "
-        "no force is written. Check that the displacement and velocity columns agree "
+        f"t = {t:g} s, with the fit's steps and with shorter ones "
+        "(`jaxmr.predict_all`): the model's state left its bounds or stopped being "
+        "finite, so no force is written. Check that the displacement and velocity columns agree "
         "there (a step in one that the other does not show) and that the motion "
         "lies within the range the model was fitted on; else the model's parameters "
         "do not suit this input"

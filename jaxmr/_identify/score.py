@@ -68,8 +68,9 @@ def with_finer_steps(
         warnings.warn(
             f"the simulation of {listed} diverged with the step policy's steps and "
             "was run again with steps shorter by the factor given: the model's state "
-            "changes over less travel than a step (a fit with shorter steps, e.g. "
-            "StepPolicy(max_travel=5e-6), would resolve it throughout)",
+            "changes within less than a step (less travel, or for a brake less "
+            "time); a fit with shorter steps (jaxmr.StepPolicy's `max_travel`, "
+            "`max_step`) would resolve it throughout",
             StepsRefined,
             stacklevel=user_stacklevel(sys._getframe()),
         )
